@@ -1,0 +1,112 @@
+//! Command-line interface: the clap definitions, logging setup and dispatch. Each
+//! subcommand lives in its own file; errors are reported here, once, with their causes.
+
+mod bench;
+mod model;
+mod run;
+mod samples;
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// jetpilot: the runtime for JetBot-class robot cars.
+///
+/// camera -> ResNet-18 on ONNX Runtime -> JetBot steering law -> motor HAT over I2C, with a
+/// watchdog that stops the motors whenever fresh commands stop.
+///
+/// Start with `jetpilot run --config config/demo.toml` (sample frames, no hardware).
+#[derive(Debug, Parser)]
+#[command(name = "jetpilot", version, propagate_version = true)]
+pub struct Cli {
+    /// More log output (-v debug, -vv trace). JETPILOT_LOG overrides (e.g. JETPILOT_LOG=jetpilot=debug).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    /// Only warnings and errors.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Drive: capture frames, run the model, steer, write the motors (the daemon).
+    Run(run::RunArgs),
+    /// Release both motors and exit (for systemd's ExecStopPost, or by hand after a crash).
+    Stop {
+        /// Config file naming the motor HAT (layout, bus, address).
+        #[arg(short, long, value_name = "FILE")]
+        config: PathBuf,
+    },
+    /// Create or inspect ONNX policy models.
+    #[command(subcommand)]
+    Model(model::ModelCommand),
+    /// Measure preprocessing, inference, the steering law + I2C encoding, and frame -> motor
+    /// command end to end, beside a bare ONNX Runtime run.
+    Bench(bench::BenchArgs),
+    /// Write synthetic road frames (a JetBot-mat road bending left and right) to try `run`
+    /// without a camera.
+    Samples(samples::SamplesArgs),
+}
+
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_tracing(cli.verbose, cli.quiet);
+    install_panic_hook();
+    let result = match cli.command {
+        Command::Run(args) => run::run(args),
+        Command::Stop { config } => run::stop(&config),
+        Command::Model(cmd) => model::main(cmd),
+        Command::Bench(args) => bench::main(args),
+        Command::Samples(args) => samples::main(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Human-readable logs on a terminal; plain lines without timestamps under systemd
+/// (journald adds its own), detected by `JOURNAL_STREAM`.
+fn init_tracing(verbose: u8, quiet: bool) {
+    use tracing_subscriber::EnvFilter;
+    let level = match (quiet, verbose) {
+        (true, _) => "warn",
+        (false, 0) => "info",
+        (false, 1) => "debug",
+        _ => "trace",
+    };
+    let filter = EnvFilter::try_from_env("JETPILOT_LOG")
+        .unwrap_or_else(|_| EnvFilter::new(format!("{level},ort=warn")));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false);
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        builder.with_ansi(false).without_time().init();
+    } else {
+        builder
+            .with_ansi(std::io::stderr().is_terminal())
+            .compact()
+            .init();
+    }
+}
+
+/// Panics are logged through tracing (so they reach the journal) before the default report.
+/// The motors are released by the motor output's `Drop` while the panic unwinds.
+fn install_panic_hook() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        tracing::error!(panic = %info, "panic");
+        default(info);
+    }));
+}

@@ -1,0 +1,155 @@
+//! `jetpilot run` (the daemon) and `jetpilot stop`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use jetpilot::clock::{Clock, MonotonicClock};
+use jetpilot::config::Config;
+use jetpilot::drive::{self, DriveParams, Parts, RunEnd, setup};
+use jetpilot::policy::Policy;
+
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Config file (see config/jetbot.toml, waveshare.toml, yahboom.toml, demo.toml).
+    #[arg(short, long, value_name = "FILE")]
+    config: PathBuf,
+    /// Model to run instead of the config's `model.path`.
+    #[arg(short, long, value_name = "FILE")]
+    model: Option<PathBuf>,
+    /// Stop after this many seconds (default: run until SIGINT/SIGTERM or the end of a replay).
+    #[arg(long, value_name = "SECS")]
+    duration: Option<f64>,
+    /// Load the config, the model and the frame source, print the pipeline, and exit
+    /// without touching the motors.
+    #[arg(long)]
+    dry_run: bool,
+}
+
+pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let policy = setup::load_policy(&cfg, args.model.as_deref())?;
+    let source = setup::open_source(&cfg, clock.clone())?;
+    if args.dry_run {
+        println!("{}", pipeline(&cfg, &policy, source.describe()));
+        return Ok(ExitCode::SUCCESS);
+    }
+    let motors = setup::open_motors(&cfg, clock.clone())?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    let parts = Parts {
+        source,
+        policy: Box::new(policy),
+        motors,
+        clock,
+    };
+    let params = DriveParams::from_config(&cfg);
+    let duration = args.duration.map(Duration::from_secs_f64);
+    let outcome = runtime.block_on(drive::run(parts, params, shutdown_signal(duration)));
+    match outcome {
+        Ok((end, report)) => {
+            let why = match end {
+                RunEnd::Shutdown => "stopped",
+                RunEnd::SourceFinished => "frame source finished",
+            };
+            println!("{why}: {report}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Err((e, report)) => {
+            println!("fault: {report}");
+            Err(e.into())
+        }
+    }
+}
+
+/// Completes on SIGINT, SIGTERM, or after `limit`.
+async fn shutdown_signal(limit: Option<Duration>) {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut term = match signal(SignalKind::terminate()) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            tracing::warn!(error = %e, "cannot watch SIGTERM");
+            None
+        }
+    };
+    let term = async {
+        match term.as_mut() {
+            Some(s) => {
+                s.recv().await;
+            }
+            None => std::future::pending::<()>().await,
+        }
+    };
+    let limit = async {
+        match limit {
+            Some(d) => tokio::time::sleep(d).await,
+            None => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT"),
+        _ = term => tracing::info!("SIGTERM"),
+        _ = limit => tracing::info!("--duration reached"),
+    }
+}
+
+/// The pipeline, one stage a line with the message on each edge.
+fn pipeline(cfg: &Config, policy: &jetpilot::policy::OrtPolicy, source: String) -> String {
+    let c = policy.contract();
+    let g = cfg.control.gains();
+    let motors = match cfg.motors.backend {
+        jetpilot::config::MotorBackend::Log => "log backend (virtual motors)".to_string(),
+        _ => {
+            let h = cfg.motors.hat_settings();
+            format!(
+                "{} motor HAT, PCA9685 at {:#04x} on {}, {} Hz",
+                h.layout.as_str(),
+                h.address,
+                h.bus_name,
+                h.pwm_hz
+            )
+        }
+    };
+    let s = c.input_size;
+    [
+        format!("capture     {source}"),
+        "              | Frame {seq, captured_at, RGB8}".into(),
+        "latest      one-frame slot: the newest frame wins, skipped frames are counted".into(),
+        "              | Frame".into(),
+        format!(
+            "preprocess  resize to {s}x{s}, {} planes, normalise mean {:?} std {:?}",
+            c.channel_order.as_str(),
+            c.mean,
+            c.std
+        ),
+        format!("              | [1,3,{s},{s}] f32 NCHW"),
+        format!("policy      {}", policy.describe()),
+        format!("              | [2] f32 ({})", c.output.as_str()),
+        format!(
+            "control     JetBot steering law: speed_gain {} steering_gain {} kd {} bias {} ki {}",
+            g.speed_gain, g.steering_gain, g.steering_kd, g.steering_bias, g.steering_ki
+        ),
+        "              | Command {seq, captured_at, left, right}".into(),
+        format!(
+            "actuate     {motors}; watchdog {} ms, frames older than {} ms dropped",
+            cfg.safety.watchdog_ms, cfg.safety.max_frame_age_ms
+        ),
+    ]
+    .join("\n")
+}
+
+pub fn stop(config: &Path) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(config)?;
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    // Opening initialises the HAT and releases both motors; stop once more to be explicit.
+    let mut motors = setup::open_motors(&cfg, clock)?;
+    motors.stop()?;
+    println!("motors stopped ({})", motors.describe());
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,567 @@
+//! The typed configuration (TOML), with JetBot defaults for every key.
+//!
+//! Unknown keys, wrong types and out-of-range values are errors that name the file, the key
+//! path, the bad value and what is allowed. Relative paths in a config file are taken
+//! relative to that file's folder, so `config/demo.toml` can point at `samples/frames`.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::control::SteeringGains;
+use crate::hw::HatLayout;
+use crate::hw::motor_hat::{HatSettings, MotorTrim};
+pub use crate::policy::runtime::Provider;
+use crate::policy::{ChannelOrder, ModelContract, OutputKind};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("config {path}: cannot read: {source}")]
+    Read {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("config {path}{line}: key `{key}`: {message}")]
+    Parse {
+        path: String,
+        /// `" line N"` when known.
+        line: String,
+        key: String,
+        message: String,
+    },
+    #[error("config {path}: key `{key}` = {value} is out of range: allowed {allowed}")]
+    OutOfRange {
+        path: String,
+        key: String,
+        value: String,
+        allowed: String,
+    },
+}
+
+pub type Result<T> = std::result::Result<T, ConfigError>;
+
+/// The whole configuration. Every section and key is optional in the file.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub camera: CameraConfig,
+    pub model: ModelConfig,
+    pub runtime: RuntimeConfig,
+    pub control: ControlConfig,
+    pub motors: MotorsConfig,
+    pub safety: SafetyConfig,
+    pub log: LogConfig,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraSource {
+    /// A folder of JPEG/PNG images replayed in name order.
+    Folder,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    pub source: CameraSource,
+    /// Folder of frames (`folder` source).
+    pub path: PathBuf,
+    /// Frames per second delivered by the source.
+    pub fps: f32,
+    /// Start again at the first frame after the last (`folder` source).
+    #[serde(rename = "loop")]
+    pub repeat: bool,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            source: CameraSource::Folder,
+            path: PathBuf::from("frames"),
+            fps: 30.0,
+            repeat: true,
+        }
+    }
+}
+
+/// The model file, and the contract to use when the file does not carry one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    pub path: PathBuf,
+    pub input_size: u32,
+    pub channel_order: ChannelOrder,
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    pub output: OutputKind,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        let c = ModelContract::default();
+        Self {
+            path: PathBuf::from("model.onnx"),
+            input_size: c.input_size,
+            channel_order: c.channel_order,
+            mean: c.mean,
+            std: c.std,
+            output: c.output,
+        }
+    }
+}
+
+impl ModelConfig {
+    /// The contract for models without jetpilot metadata.
+    pub fn fallback_contract(&self) -> ModelContract {
+        ModelContract {
+            input_size: self.input_size,
+            channel_order: self.channel_order,
+            mean: self.mean,
+            std: self.std,
+            output: self.output,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RuntimeConfig {
+    /// Path to `libonnxruntime.so`; unset: `ORT_DYLIB_PATH`, then the standard places.
+    pub library: Option<PathBuf>,
+    pub providers: Vec<Provider>,
+    /// Threads inside one operator (0: ONNX Runtime decides).
+    pub intra_threads: usize,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        Self {
+            library: None,
+            providers: vec![Provider::Cpu],
+            intra_threads: 2,
+        }
+    }
+}
+
+/// The steering law's gains (JetBot's sliders), see `control::steering`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControlConfig {
+    pub speed_gain: f32,
+    pub steering_gain: f32,
+    pub steering_kd: f32,
+    pub steering_bias: f32,
+    pub steering_ki: f32,
+    pub integral_limit: f32,
+}
+
+impl Default for ControlConfig {
+    fn default() -> Self {
+        let g = SteeringGains::default();
+        Self {
+            speed_gain: g.speed_gain,
+            steering_gain: g.steering_gain,
+            steering_kd: g.steering_kd,
+            steering_bias: g.steering_bias,
+            steering_ki: g.steering_ki,
+            integral_limit: g.integral_limit,
+        }
+    }
+}
+
+impl ControlConfig {
+    pub fn gains(&self) -> SteeringGains {
+        SteeringGains {
+            speed_gain: self.speed_gain,
+            steering_gain: self.steering_gain,
+            steering_kd: self.steering_kd,
+            steering_bias: self.steering_bias,
+            steering_ki: self.steering_ki,
+            integral_limit: self.integral_limit,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotorBackend {
+    /// The motor HAT on `/dev/i2c-<i2c_bus>` through linux-embedded-hal.
+    I2c,
+    /// The motor HAT through rppal (Raspberry Pi; needs the `rpi` build feature).
+    Rppal,
+    /// No hardware: log and record the commands.
+    Log,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrimConfig {
+    pub alpha: f32,
+    pub beta: f32,
+    /// Unset: the layout's default (true on the NVIDIA JetBot's Adafruit HAT).
+    pub invert: Option<bool>,
+}
+
+impl Default for TrimConfig {
+    fn default() -> Self {
+        Self {
+            alpha: 1.0,
+            beta: 0.0,
+            invert: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotorsConfig {
+    pub backend: MotorBackend,
+    pub layout: HatLayout,
+    pub i2c_bus: u8,
+    /// Unset: the layout's address (0x60 Adafruit/Waveshare, 0x40 Yahboom).
+    pub address: Option<u8>,
+    /// Unset: 1600 Hz.
+    pub pwm_hz: Option<f32>,
+    /// Extra attempts for a failed I2C write before it becomes a fault.
+    pub retries: u32,
+    pub left: TrimConfig,
+    pub right: TrimConfig,
+    /// `log` backend: also append each command as a JSON line to this file.
+    pub log_path: Option<PathBuf>,
+}
+
+impl Default for MotorsConfig {
+    fn default() -> Self {
+        Self {
+            backend: MotorBackend::I2c,
+            layout: HatLayout::Adafruit,
+            i2c_bus: 1,
+            address: None,
+            pwm_hz: None,
+            retries: 2,
+            left: TrimConfig::default(),
+            right: TrimConfig::default(),
+            log_path: None,
+        }
+    }
+}
+
+impl MotorsConfig {
+    pub fn hat_settings(&self) -> HatSettings {
+        let mut s = HatSettings::for_layout(self.layout);
+        if let Some(a) = self.address {
+            s.address = a;
+        }
+        if let Some(f) = self.pwm_hz {
+            s.pwm_hz = f;
+        }
+        let (li, ri) = self.layout.default_invert();
+        s.left = MotorTrim {
+            alpha: self.left.alpha,
+            beta: self.left.beta,
+            invert: self.left.invert.unwrap_or(li),
+        };
+        s.right = MotorTrim {
+            alpha: self.right.alpha,
+            beta: self.right.beta,
+            invert: self.right.invert.unwrap_or(ri),
+        };
+        s.retries = self.retries;
+        s.bus_name = format!("/dev/i2c-{}", self.i2c_bus);
+        s
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SafetyConfig {
+    /// Stop the motors when no fresh command was written for this long.
+    pub watchdog_ms: u64,
+    /// Never act on a frame older than this (the command is dropped, the watchdog runs on).
+    pub max_frame_age_ms: u64,
+    /// A model output beyond +-this (or NaN/inf) is a fault.
+    pub max_abs_output: f32,
+}
+
+impl Default for SafetyConfig {
+    fn default() -> Self {
+        Self {
+            watchdog_ms: 250,
+            max_frame_age_ms: 500,
+            max_abs_output: 10.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// Seconds between stage-latency reports (0: never).
+    pub stats_interval_s: f32,
+    /// Log every motor command at INFO (the `log` backend).
+    pub print_commands: bool,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        Self {
+            stats_interval_s: 5.0,
+            print_commands: true,
+        }
+    }
+}
+
+impl Config {
+    /// Reads, parses and validates a config file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let mut cfg = Self::parse(&text, &path.display().to_string())?;
+        if let Some(dir) = path.parent() {
+            cfg.resolve_paths(dir);
+        }
+        Ok(cfg)
+    }
+
+    /// Parses and validates config text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Self> {
+        let parse_err = |key: String, line: Option<usize>, message: String| ConfigError::Parse {
+            path: origin.to_string(),
+            line: line.map(|l| format!(" line {l}")).unwrap_or_default(),
+            key,
+            message,
+        };
+        let de = toml::Deserializer::parse(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start));
+            parse_err("(syntax)".into(), line, e.message().trim().to_string())
+        })?;
+        let cfg: Config = serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.into_inner();
+            let line = inner.span().map(|s| line_of(text, s.start));
+            parse_err(key, line, inner.message().trim().to_string())
+        })?;
+        cfg.validate(origin)?;
+        Ok(cfg)
+    }
+
+    fn resolve_paths(&mut self, dir: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
+        };
+        fix(&mut self.camera.path);
+        fix(&mut self.model.path);
+        if let Some(p) = self.runtime.library.as_mut() {
+            fix(p);
+        }
+        if let Some(p) = self.motors.log_path.as_mut() {
+            fix(p);
+        }
+    }
+
+    /// Checks every numeric key against its allowed range.
+    pub fn validate(&self, origin: &str) -> Result<()> {
+        let mut v = Validator { origin };
+        v.range("camera.fps", self.camera.fps, 0.1, 240.0)?;
+        v.range_u("model.input_size", self.model.input_size as u64, 32, 1024)?;
+        for (i, s) in self.model.std.iter().enumerate() {
+            v.range(&format!("model.std[{i}]"), *s, 1e-3, 1e3)?;
+        }
+        for (i, m) in self.model.mean.iter().enumerate() {
+            v.range(&format!("model.mean[{i}]"), *m, -10.0, 10.0)?;
+        }
+        if self.runtime.providers.is_empty() {
+            return Err(v.err(
+                "runtime.providers",
+                "[]",
+                "a non-empty list of \"tensorrt\", \"cuda\", \"cpu\"",
+            ));
+        }
+        v.range_u(
+            "runtime.intra_threads",
+            self.runtime.intra_threads as u64,
+            0,
+            64,
+        )?;
+        let c = &self.control;
+        v.range("control.speed_gain", c.speed_gain, 0.0, 1.0)?;
+        v.range("control.steering_gain", c.steering_gain, 0.0, 2.0)?;
+        v.range("control.steering_kd", c.steering_kd, 0.0, 1.0)?;
+        v.range("control.steering_bias", c.steering_bias, -0.5, 0.5)?;
+        v.range("control.steering_ki", c.steering_ki, 0.0, 2.0)?;
+        v.range("control.integral_limit", c.integral_limit, 0.0, 1.0)?;
+        let m = &self.motors;
+        if let Some(a) = m.address {
+            v.range_u("motors.address", a as u64, 0x08, 0x77)?;
+        }
+        if let Some(f) = m.pwm_hz {
+            v.range("motors.pwm_hz", f, 24.0, 1600.0)?;
+        }
+        v.range_u("motors.retries", m.retries as u64, 0, 10)?;
+        for (side, t) in [("left", &m.left), ("right", &m.right)] {
+            v.range(&format!("motors.{side}.alpha"), t.alpha, 0.0, 2.0)?;
+            v.range(&format!("motors.{side}.beta"), t.beta, -0.5, 0.5)?;
+        }
+        let s = &self.safety;
+        v.range_u("safety.watchdog_ms", s.watchdog_ms, 20, 5000)?;
+        v.range_u("safety.max_frame_age_ms", s.max_frame_age_ms, 10, 10_000)?;
+        v.range("safety.max_abs_output", s.max_abs_output, 0.1, 1e6)?;
+        v.range(
+            "log.stats_interval_s",
+            self.log.stats_interval_s,
+            0.0,
+            3600.0,
+        )?;
+        Ok(())
+    }
+}
+
+struct Validator<'a> {
+    origin: &'a str,
+}
+
+impl Validator<'_> {
+    fn err(&self, key: &str, value: &str, allowed: &str) -> ConfigError {
+        ConfigError::OutOfRange {
+            path: self.origin.to_string(),
+            key: key.to_string(),
+            value: value.to_string(),
+            allowed: allowed.to_string(),
+        }
+    }
+
+    fn range(&mut self, key: &str, value: f32, lo: f32, hi: f32) -> Result<()> {
+        if value.is_finite() && (lo..=hi).contains(&value) {
+            Ok(())
+        } else {
+            Err(self.err(key, &value.to_string(), &format!("{lo} ..= {hi}")))
+        }
+    }
+
+    fn range_u(&mut self, key: &str, value: u64, lo: u64, hi: u64) -> Result<()> {
+        if (lo..=hi).contains(&value) {
+            Ok(())
+        } else {
+            Err(self.err(key, &value.to_string(), &format!("{lo} ..= {hi}")))
+        }
+    }
+}
+
+/// 1-based line number of a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    text.get(..offset.min(text.len()))
+        .map(|s| s.matches('\n').count() + 1)
+        .unwrap_or(1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_file_gives_jetbot_defaults() {
+        let cfg = Config::parse("", "t.toml").unwrap();
+        assert_eq!(cfg, Config::default());
+        assert_eq!(cfg.control.steering_gain, 0.2);
+        assert_eq!(cfg.control.speed_gain, 0.0);
+        assert_eq!(cfg.safety.watchdog_ms, 250);
+        let hat = cfg.motors.hat_settings();
+        assert_eq!(hat.address, 0x60);
+        assert_eq!(hat.pwm_hz, 1600.0);
+        assert!(hat.left.invert && hat.right.invert);
+    }
+
+    #[test]
+    fn unknown_key_is_named_with_its_line() {
+        let err = Config::parse(
+            "[control]\nspeed_gain = 0.2\nsteering_gian = 0.1\n",
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("x.toml line 3"), "{err}");
+        assert!(err.contains("control"), "{err}");
+        assert!(err.contains("steering_gian"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_the_key() {
+        let err = Config::parse("[safety]\nwatchdog_ms = \"fast\"\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("safety.watchdog_ms"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_names_key_value_and_range() {
+        let err = Config::parse("[control]\nspeed_gain = 1.5\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            err,
+            "config x.toml: key `control.speed_gain` = 1.5 is out of range: allowed 0 ..= 1"
+        );
+        let err = Config::parse("[motors]\naddress = 0x90\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("motors.address` = 144"), "{err}");
+    }
+
+    #[test]
+    fn bad_enum_value_lists_the_choices() {
+        let err = Config::parse("[motors]\nlayout = \"sparkfun\"\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("motors.layout"), "{err}");
+        assert!(err.contains("adafruit"), "{err}");
+    }
+
+    #[test]
+    fn syntax_error_has_a_line() {
+        let err = Config::parse("[control\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("x.toml line 1"), "{err}");
+    }
+
+    #[test]
+    fn layout_defaults_and_overrides() {
+        let cfg = Config::parse(
+            "[motors]\nlayout = \"yahboom\"\n[motors.left]\ninvert = true\nalpha = 0.9\n",
+            "x.toml",
+        )
+        .unwrap();
+        let hat = cfg.motors.hat_settings();
+        assert_eq!(hat.address, 0x40);
+        assert!(hat.left.invert);
+        assert!(!hat.right.invert);
+        assert_eq!(hat.left.alpha, 0.9);
+    }
+
+    #[test]
+    fn relative_paths_follow_the_config_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.toml");
+        std::fs::write(
+            &p,
+            "[camera]\npath = \"frames\"\n[model]\npath = \"/abs/m.onnx\"\n",
+        )
+        .unwrap();
+        let cfg = Config::load(&p).unwrap();
+        assert_eq!(cfg.camera.path, dir.path().join("frames"));
+        assert_eq!(cfg.model.path, PathBuf::from("/abs/m.onnx"));
+    }
+
+    #[test]
+    fn missing_file_is_named() {
+        let err = Config::load(Path::new("/nonexistent/j.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("/nonexistent/j.toml"), "{err}");
+    }
+}

@@ -1,0 +1,347 @@
+//! The daemon: capture -> infer -> control -> actuate, with a watchdog.
+//!
+//! ```text
+//!  capture thread        inference thread (blocking)              actuator (async task)
+//!  FrameSource --Frame--> LatestFrame --Frame--> preprocess -> policy -> steering law
+//!                         (newest wins)          --Command{seq, captured_at, wheels}--> MotorOutput
+//! ```
+//!
+//! The actuator owns the motors. It writes each command unless its frame is older than
+//! `safety.max_frame_age_ms`, and stops the motors when:
+//! - no fresh command was written for `safety.watchdog_ms` (camera stall, slow model): the
+//!   watchdog; the daemon keeps running and drives again when fresh commands return;
+//! - a stage reports a fault (frame source error, model error, NaN/inf/out-of-range output,
+//!   I2C error after its retries) or dies (panic): the daemon ends with that error;
+//! - the shutdown future completes (SIGINT/SIGTERM in `main`), or the source finished.
+//!
+//! Shutdown order: the actuator stops the motors first, then cancels the token that the
+//! inference and capture threads watch, then waits (bounded) for them to finish. The
+//! motor output also stops the motors when dropped, which covers a panic in the actuator.
+
+pub mod setup;
+pub mod stages;
+pub mod stats;
+pub mod watchdog;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+use crate::camera::{FrameSource, LatestFrame};
+use crate::clock::Clock;
+use crate::control::SteeringGains;
+use crate::hw::{MotorError, MotorOutput};
+use crate::policy::{Policy, PolicyError};
+use stages::{Command, InferParams, StageMsg};
+use stats::{StageStats, StageSummary};
+use watchdog::Watchdog;
+
+/// A fault that ended the run. The motors were stopped before it was returned.
+#[derive(Debug, thiserror::Error)]
+pub enum DriveError {
+    #[error("frame source failed: {0}")]
+    Camera(String),
+    #[error("frame {seq}: preprocessing failed: {source}")]
+    Preprocess {
+        seq: u64,
+        #[source]
+        source: crate::policy::preprocess::PreprocessError,
+    },
+    #[error("model failed: {0}")]
+    Policy(#[from] PolicyError),
+    #[error(
+        "frame {seq}: model output {outputs:?} is not finite or beyond +-{limit} (safety.max_abs_output)"
+    )]
+    BadOutput {
+        seq: u64,
+        outputs: [f32; 2],
+        limit: f32,
+    },
+    #[error("motors failed: {0}")]
+    Motor(#[from] MotorError),
+    #[error("the {0} stage ended unexpectedly (it panicked; see the log above)")]
+    StageDied(&'static str),
+}
+
+/// The swappable ends of the pipeline: real devices, the simulator or test doubles.
+pub struct Parts {
+    pub source: Box<dyn FrameSource>,
+    pub policy: Box<dyn Policy>,
+    pub motors: Box<dyn MotorOutput>,
+    pub clock: Arc<dyn Clock>,
+}
+
+/// Daemon settings, from the config's `[control]`, `[safety]` and `[log]`.
+#[derive(Debug, Clone)]
+pub struct DriveParams {
+    pub gains: SteeringGains,
+    pub watchdog: Duration,
+    pub max_frame_age: Duration,
+    pub max_abs_output: f32,
+    /// Zero: no periodic stats.
+    pub stats_interval: Duration,
+}
+
+impl DriveParams {
+    pub fn from_config(cfg: &crate::config::Config) -> Self {
+        Self {
+            gains: cfg.control.gains(),
+            watchdog: Duration::from_millis(cfg.safety.watchdog_ms),
+            max_frame_age: Duration::from_millis(cfg.safety.max_frame_age_ms),
+            max_abs_output: cfg.safety.max_abs_output,
+            stats_interval: Duration::from_secs_f32(cfg.log.stats_interval_s),
+        }
+    }
+}
+
+/// Why a run ended without a fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunEnd {
+    Shutdown,
+    SourceFinished,
+}
+
+/// What happened during a run.
+#[derive(Debug, Clone, Default)]
+pub struct RunReport {
+    pub frames_captured: u64,
+    pub frames_skipped: u64,
+    pub commands_written: u64,
+    /// Commands dropped because their frame was older than `max_frame_age`.
+    pub stale_dropped: u64,
+    pub watchdog_stops: u64,
+    pub elapsed: Duration,
+    pub latency: StageSummary,
+}
+
+impl std::fmt::Display for RunReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let secs = self.elapsed.as_secs_f64().max(1e-9);
+        writeln!(
+            f,
+            "{} frames captured, {} skipped (newest frame wins), {} commands written ({:.1}/s), {} stale dropped, {} watchdog stops in {:.1} s",
+            self.frames_captured,
+            self.frames_skipped,
+            self.commands_written,
+            self.commands_written as f64 / secs,
+            self.stale_dropped,
+            self.watchdog_stops,
+            secs
+        )?;
+        write!(f, "{}", self.latency)
+    }
+}
+
+/// The run's outcome: how it ended and what happened, or the fault (with the report so far).
+pub type Outcome = Result<(RunEnd, RunReport), (DriveError, RunReport)>;
+
+/// Runs the daemon until `shutdown` completes, the source finishes, or a fault.
+/// The motors are stopped on every way out.
+pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output = ()>) -> Outcome {
+    let Parts {
+        source,
+        policy,
+        mut motors,
+        clock,
+    } = parts;
+    let started = clock.now();
+    let cancel = CancellationToken::new();
+    let slot = Arc::new(LatestFrame::new());
+    tracing::info!(source = %source.describe(), policy = %policy.describe(), motors = %motors.describe(), "starting");
+
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+    let capture = {
+        let (slot, cancel) = (slot.clone(), cancel.clone());
+        std::thread::Builder::new()
+            .name("capture".into())
+            .spawn(move || {
+                stages::capture(source, slot, cancel);
+                let _ = done_tx.send(());
+            })
+    };
+    if let Err(e) = capture {
+        let _ = motors.stop();
+        return Err((
+            DriveError::Camera(format!("cannot start the capture thread: {e}")),
+            RunReport::default(),
+        ));
+    }
+    let (tx, rx) = mpsc::channel::<StageMsg>(4);
+    let inference = {
+        let (slot, cancel) = (slot.clone(), cancel.clone());
+        let p = InferParams {
+            gains: params.gains,
+            max_abs_output: params.max_abs_output,
+            clock: clock.clone(),
+        };
+        tokio::task::spawn_blocking(move || stages::infer(policy, slot, tx, cancel, p))
+    };
+
+    let mut actuator = Actuator {
+        motors: &mut motors,
+        clock: clock.as_ref(),
+        params: &params,
+        stats: StageStats::default(),
+        watchdog: Watchdog::new(params.watchdog),
+        report: RunReport::default(),
+    };
+    let result = actuator.run(rx, shutdown).await;
+    let mut report = std::mem::take(&mut actuator.report);
+    report.latency = actuator.stats.overall();
+
+    // Motors are stopped; now wind the other stages down.
+    cancel.cancel();
+    if tokio::time::timeout(Duration::from_secs(2), inference)
+        .await
+        .is_err()
+    {
+        tracing::warn!("the inference stage did not finish within 2 s after shutdown");
+    }
+    if tokio::task::spawn_blocking(move || done_rx.recv_timeout(Duration::from_secs(1)))
+        .await
+        .map(|r| r.is_err())
+        .unwrap_or(true)
+    {
+        tracing::warn!("the frame source did not return within 1 s after shutdown; leaving it");
+    }
+    let counts = slot.counts();
+    report.frames_captured = counts.produced;
+    report.frames_skipped = counts.skipped;
+    report.elapsed = clock.now().saturating_sub(started);
+    match result {
+        Ok(end) => Ok((end, report)),
+        Err(e) => Err((e, report)),
+    }
+}
+
+/// The task that owns the motors.
+struct Actuator<'a> {
+    motors: &'a mut Box<dyn MotorOutput>,
+    clock: &'a dyn Clock,
+    params: &'a DriveParams,
+    stats: StageStats,
+    watchdog: Watchdog,
+    report: RunReport,
+}
+
+impl Actuator<'_> {
+    async fn run(
+        &mut self,
+        mut rx: mpsc::Receiver<StageMsg>,
+        shutdown: impl Future<Output = ()>,
+    ) -> Result<RunEnd, DriveError> {
+        tokio::pin!(shutdown);
+        let interval = self.params.stats_interval;
+        let mut stats_tick = tokio::time::interval(if interval.is_zero() {
+            Duration::from_secs(3600)
+        } else {
+            interval
+        });
+        stats_tick.tick().await;
+        let outcome = loop {
+            // The watchdog's deadline, as a tokio instant (the clocks run at the same rate).
+            let until_deadline = self
+                .watchdog
+                .deadline()
+                .map(|d| d.saturating_sub(self.clock.now()));
+            let sleep = tokio::time::sleep(until_deadline.unwrap_or(Duration::from_secs(3600)));
+            tokio::select! {
+                biased;
+                _ = &mut shutdown => {
+                    tracing::info!("shutdown requested");
+                    break Ok(RunEnd::Shutdown);
+                }
+                msg = rx.recv() => match msg {
+                    Some(StageMsg::Command(cmd)) => {
+                        if let Err(e) = self.write(cmd) {
+                            break Err(e);
+                        }
+                    }
+                    Some(StageMsg::SourceFinished) => {
+                        tracing::info!("frame source finished");
+                        break Ok(RunEnd::SourceFinished);
+                    }
+                    Some(StageMsg::Fault(e)) => break Err(e),
+                    None => break Err(DriveError::StageDied("inference")),
+                },
+                _ = sleep, if until_deadline.is_some() => {
+                    if self.watchdog.expired(self.clock.now()) {
+                        self.report.watchdog_stops += 1;
+                        tracing::warn!(
+                            period_ms = self.watchdog.period().as_millis() as u64,
+                            "no fresh command within the watchdog period: motors stopped"
+                        );
+                        if let Err(e) = self.motors.stop() {
+                            break Err(e.into());
+                        }
+                    }
+                }
+                _ = stats_tick.tick(), if !interval.is_zero() => self.log_window(),
+            }
+        };
+        if let Err(e) = self.motors.stop() {
+            tracing::error!(error = %e, "could not stop the motors");
+            if outcome.is_ok() {
+                return Err(e.into());
+            }
+        } else {
+            tracing::info!("motors stopped");
+        }
+        if let Err(e) = &outcome {
+            tracing::error!(error = %e, "fault: motors stopped");
+        }
+        outcome
+    }
+
+    /// Writes one command unless its frame is too old.
+    fn write(&mut self, cmd: Command) -> Result<(), DriveError> {
+        let age = self.clock.now().saturating_sub(cmd.captured_at);
+        if age > self.params.max_frame_age {
+            self.report.stale_dropped += 1;
+            tracing::debug!(
+                seq = cmd.seq,
+                age_ms = age.as_millis() as u64,
+                "stale command dropped"
+            );
+            return Ok(());
+        }
+        let t0 = self.clock.now();
+        self.motors.drive(cmd.wheels)?;
+        let t1 = self.clock.now();
+        self.watchdog.feed(t1);
+        self.report.commands_written += 1;
+        self.stats.preprocess.push(cmd.preprocess);
+        self.stats.inference.push(cmd.inference);
+        self.stats.control.push(cmd.control);
+        self.stats.actuate.push(t1.saturating_sub(t0));
+        self.stats
+            .frame_age
+            .push(t1.saturating_sub(cmd.captured_at));
+        tracing::debug!(
+            seq = cmd.seq,
+            x = cmd.outputs[0],
+            y = cmd.outputs[1],
+            left = cmd.wheels.left,
+            right = cmd.wheels.right,
+            age_ms = age.as_secs_f32() * 1000.0,
+            "command"
+        );
+        Ok(())
+    }
+
+    fn log_window(&mut self) {
+        let s = self.stats.take_window();
+        tracing::info!(
+            commands = s.actuate.count,
+            preprocess = %s.preprocess,
+            inference = %s.inference,
+            control = %s.control,
+            actuate = %s.actuate,
+            frame_age = %s.frame_age,
+            "stage latency"
+        );
+    }
+}

@@ -1,0 +1,97 @@
+//! Building the daemon's parts from a [`Config`]: the frame source, the policy and the
+//! motor output. The CLI, the simulator and the integration tests all go through here.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crate::camera::folder::FolderSource;
+use crate::camera::{CameraError, FrameSource};
+use crate::clock::Clock;
+use crate::config::{CameraSource, Config, MotorBackend};
+use crate::hw::{LogMotors, MotorError, MotorOutput};
+use crate::policy::ort_policy::OrtOptions;
+use crate::policy::{OrtPolicy, PolicyError};
+
+/// The configured frame source.
+pub fn open_source(
+    cfg: &Config,
+    clock: Arc<dyn Clock>,
+) -> Result<Box<dyn FrameSource>, CameraError> {
+    match cfg.camera.source {
+        CameraSource::Folder => Ok(Box::new(FolderSource::open(
+            &cfg.camera.path,
+            cfg.camera.fps,
+            cfg.camera.repeat,
+            clock,
+        )?)),
+    }
+}
+
+/// The configured model on ONNX Runtime; `model` overrides `model.path`.
+pub fn load_policy(cfg: &Config, model: Option<&Path>) -> Result<OrtPolicy, PolicyError> {
+    let fallback = cfg.model.fallback_contract();
+    OrtPolicy::load(
+        model.unwrap_or(&cfg.model.path),
+        &OrtOptions {
+            library: cfg.runtime.library.as_deref(),
+            providers: &cfg.runtime.providers,
+            intra_threads: cfg.runtime.intra_threads,
+            fallback_contract: &fallback,
+        },
+    )
+}
+
+/// The configured motor output, initialised and stopped.
+pub fn open_motors(
+    cfg: &Config,
+    clock: Arc<dyn Clock>,
+) -> Result<Box<dyn MotorOutput>, MotorError> {
+    let m = &cfg.motors;
+    match m.backend {
+        MotorBackend::Log => {
+            let mut out = LogMotors::new(clock).with_print(cfg.log.print_commands);
+            if let Some(p) = &m.log_path {
+                out = out.with_file(p)?;
+            }
+            Ok(Box::new(out))
+        }
+        MotorBackend::I2c => open_linux(cfg),
+        MotorBackend::Rppal => open_rpi(cfg),
+    }
+}
+
+#[cfg(feature = "linux-hal")]
+fn open_linux(cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    let bus = crate::hw::bus::open_linux(cfg.motors.i2c_bus)?;
+    let hat = crate::hw::MotorHat::init(
+        bus,
+        cfg.motors.hat_settings(),
+        &mut crate::hw::bus::StdDelay,
+    )?;
+    Ok(Box::new(hat))
+}
+
+#[cfg(not(feature = "linux-hal"))]
+fn open_linux(_cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    Err(MotorError::Invalid(
+        "motors.backend = \"i2c\" needs a build with the `linux-hal` feature".into(),
+    ))
+}
+
+#[cfg(feature = "rpi")]
+fn open_rpi(cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    let bus = crate::hw::bus::open_rpi(cfg.motors.i2c_bus)?;
+    let hat = crate::hw::MotorHat::init(
+        bus,
+        cfg.motors.hat_settings(),
+        &mut crate::hw::bus::StdDelay,
+    )?;
+    Ok(Box::new(hat))
+}
+
+#[cfg(not(feature = "rpi"))]
+fn open_rpi(_cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    Err(MotorError::Invalid(
+        "motors.backend = \"rppal\" needs a build with the `rpi` feature (cargo build --features rpi)".into(),
+    ))
+}

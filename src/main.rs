@@ -1,0 +1,7 @@
+//! The `jetpilot` binary: parse the command line, set up logging, dispatch.
+
+mod cli;
+
+fn main() -> std::process::ExitCode {
+    cli::main()
+}

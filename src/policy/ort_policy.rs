@@ -1,0 +1,273 @@
+//! [`OrtPolicy`]: a model file run by ONNX Runtime, with its contract and shapes checked
+//! at load and the execution provider actually in use logged.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use ort::ep;
+use ort::session::Session;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::value::TensorRef;
+
+use super::runtime::{self, Provider};
+use super::{ModelContract, Policy, PolicyError, Result};
+
+/// How to build the session.
+#[derive(Debug, Clone)]
+pub struct OrtOptions<'a> {
+    /// `runtime.library` from the config.
+    pub library: Option<&'a Path>,
+    /// Execution providers in order of preference.
+    pub providers: &'a [Provider],
+    /// Threads inside one operator (0: ONNX Runtime decides).
+    pub intra_threads: usize,
+    /// The contract for a model that carries none in its metadata.
+    pub fallback_contract: &'a ModelContract,
+}
+
+/// Where a model's contract came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ContractSource {
+    ModelMetadata,
+    Config,
+}
+
+pub struct OrtPolicy {
+    session: Session,
+    contract: ModelContract,
+    contract_source: ContractSource,
+    path: String,
+    provider: Provider,
+    shape: [usize; 4],
+}
+
+impl OrtPolicy {
+    /// Loads `path` into an ONNX Runtime session.
+    pub fn load(path: &Path, opts: &OrtOptions<'_>) -> Result<Self> {
+        let shown = path.display().to_string();
+        let model_err = |reason: String| PolicyError::Model {
+            path: shown.clone(),
+            reason,
+        };
+        let bytes = std::fs::read(path).map_err(|e| model_err(format!("cannot read: {e}")))?;
+        if bytes.is_empty() {
+            return Err(model_err("the file is empty".into()));
+        }
+        let (_, env) = runtime::environment(opts.library)?;
+        let mut builder = Session::builder(env)
+            .map_err(|e| PolicyError::Inference(e.to_string()))?
+            .with_optimization_level(GraphOptimizationLevel::Level3)
+            .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        if opts.intra_threads > 0 {
+            builder = builder
+                .with_intra_threads(opts.intra_threads)
+                .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        }
+        let mut in_use = None;
+        for &p in opts.providers {
+            let (available, dispatch) = match p {
+                Provider::Tensorrt => (
+                    <ep::TensorRT as ep::ExecutionProvider>::is_available(),
+                    ep::TensorRT::default().build().error_on_failure(),
+                ),
+                Provider::Cuda => (
+                    <ep::CUDA as ep::ExecutionProvider>::is_available(),
+                    ep::CUDA::default().build().error_on_failure(),
+                ),
+                Provider::Cpu => (Ok(true), ep::CPU::default().build().error_on_failure()),
+            };
+            if !matches!(available, Ok(true)) {
+                tracing::warn!(
+                    provider = p.as_str(),
+                    "execution provider not in this ONNX Runtime build; trying the next"
+                );
+                continue;
+            }
+            match builder.with_execution_providers([dispatch]) {
+                Ok(b) => {
+                    builder = b;
+                    in_use = Some(p);
+                    break;
+                }
+                Err(e) => {
+                    tracing::warn!(provider = p.as_str(), error = %e, "execution provider failed to register; trying the next");
+                    builder = e.recover();
+                }
+            }
+        }
+        // ONNX Runtime always has its CPU provider underneath.
+        let provider = in_use.unwrap_or(Provider::Cpu);
+        let session = builder
+            .commit_from_memory(&bytes)
+            .map_err(|e| model_err(format!("ONNX Runtime cannot load it: {e}")))?;
+
+        let meta = read_metadata(&session);
+        let (contract, contract_source) = match ModelContract::from_metadata(&meta) {
+            Ok(Some(c)) => (c, ContractSource::ModelMetadata),
+            Ok(None) => (opts.fallback_contract.clone(), ContractSource::Config),
+            Err(source) => {
+                return Err(PolicyError::Contract {
+                    path: shown,
+                    source,
+                });
+            }
+        };
+        let shape = check_shapes(&session, &contract, &shown)?;
+        tracing::info!(
+            model = %shown,
+            provider = provider.as_str(),
+            contract = %contract,
+            contract_from = ?contract_source,
+            "model loaded"
+        );
+        Ok(Self {
+            session,
+            contract,
+            contract_source,
+            path: shown,
+            provider,
+            shape,
+        })
+    }
+
+    pub fn provider(&self) -> Provider {
+        self.provider
+    }
+
+    pub fn contract_source(&self) -> ContractSource {
+        self.contract_source
+    }
+}
+
+fn read_metadata(session: &Session) -> BTreeMap<String, String> {
+    let mut out = BTreeMap::new();
+    if let Ok(meta) = session.metadata()
+        && let Ok(keys) = meta.custom_keys()
+    {
+        for k in keys {
+            if let Some(v) = meta.custom(&k) {
+                out.insert(k, v);
+            }
+        }
+    }
+    out
+}
+
+fn fmt_dims(d: &[i64]) -> String {
+    let parts: Vec<String> = d
+        .iter()
+        .map(|x| if *x < 0 { "?".into() } else { x.to_string() })
+        .collect();
+    format!("[{}]", parts.join(","))
+}
+
+/// Input `[1|?, 3, S|?, S|?]` f32 and a first output `[1|?, 2|?]`; returns the concrete
+/// input shape.
+fn check_shapes(session: &Session, c: &ModelContract, path: &str) -> Result<[usize; 4]> {
+    let s = c.input_size as i64;
+    let shape_err = |what: String, expected: String, found: String| PolicyError::Shape {
+        path: path.to_string(),
+        what,
+        expected,
+        found,
+    };
+    let inputs = session.inputs();
+    if inputs.len() != 1 {
+        return Err(shape_err(
+            "the graph".into(),
+            "exactly 1 input".into(),
+            format!("{} inputs", inputs.len()),
+        ));
+    }
+    let input = &inputs[0];
+    let expected_in = format!("[1,3,{s},{s}] float32 (input_size {s} from the contract)");
+    let dims = input.dtype().tensor_shape().map(|d| d.to_vec());
+    let ok = matches!(
+        input.dtype().tensor_type(),
+        Some(ort::value::TensorElementType::Float32)
+    ) && dims.as_ref().is_some_and(|d| {
+        d.len() == 4
+            && (d[0] == 1 || d[0] < 0)
+            && d[1] == 3
+            && (d[2] == s || d[2] < 0)
+            && (d[3] == s || d[3] < 0)
+    });
+    if !ok {
+        return Err(shape_err(
+            format!("input `{}`", input.name()),
+            expected_in,
+            format!(
+                "{} {:?}",
+                dims.as_deref()
+                    .map(fmt_dims)
+                    .unwrap_or_else(|| "(not a tensor)".into()),
+                input.dtype().tensor_type()
+            ),
+        ));
+    }
+    let Some(output) = session.outputs().first() else {
+        return Err(shape_err(
+            "the graph".into(),
+            "at least 1 output".into(),
+            "none".into(),
+        ));
+    };
+    let odims = output.dtype().tensor_shape().map(|d| d.to_vec());
+    let ok = matches!(
+        output.dtype().tensor_type(),
+        Some(ort::value::TensorElementType::Float32)
+    ) && odims
+        .as_ref()
+        .is_some_and(|d| d.len() == 2 && (d[0] == 1 || d[0] < 0) && (d[1] == 2 || d[1] < 0));
+    if !ok {
+        return Err(shape_err(
+            format!("output `{}`", output.name()),
+            "[1,2] float32".into(),
+            format!(
+                "{} {:?}",
+                odims
+                    .as_deref()
+                    .map(fmt_dims)
+                    .unwrap_or_else(|| "(not a tensor)".into()),
+                output.dtype().tensor_type()
+            ),
+        ));
+    }
+    Ok([1, 3, s as usize, s as usize])
+}
+
+impl Policy for OrtPolicy {
+    fn contract(&self) -> &ModelContract {
+        &self.contract
+    }
+
+    fn infer(&mut self, input: &[f32]) -> Result<[f32; 2]> {
+        let expected: usize = self.shape.iter().product();
+        if input.len() != expected {
+            return Err(PolicyError::InputSize {
+                expected,
+                found: input.len(),
+            });
+        }
+        let tensor = TensorRef::from_array_view((self.shape, input))
+            .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        let outputs = self
+            .session
+            .run(ort::inputs![tensor])
+            .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        let (_, data) = outputs[0]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        match data {
+            [a, b, ..] => Ok([*a, *b]),
+            _ => Err(PolicyError::Inference(format!(
+                "output has {} values, expected 2",
+                data.len()
+            ))),
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!("{} on ONNX Runtime ({})", self.path, self.provider.as_str())
+    }
+}
