@@ -1,0 +1,181 @@
+//! Test doubles and fixtures shared by the integration tests: small real models, synthetic
+//! frame folders, scripted policies, stalling/failing frame sources and a fault-injecting
+//! I2C bus.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use jetpilot::camera::synthetic::{render_road, sample_view};
+use jetpilot::camera::{CameraError, Frame, FrameSource};
+use jetpilot::clock::Clock;
+use jetpilot::policy::onnx::{self, Resnet18Weights};
+use jetpilot::policy::{ModelContract, Policy, PolicyError};
+
+/// A random ResNet-18 at `size` x `size` with our contract in its metadata.
+pub fn write_model(dir: &Path, size: u32, seed: u64) -> PathBuf {
+    let contract = ModelContract {
+        input_size: size,
+        ..ModelContract::default()
+    };
+    let model = onnx::resnet18_model(size, &Resnet18Weights::random(2, seed), &contract, "test")
+        .expect("model");
+    let path = dir.join(format!("resnet18_{size}_{seed}.onnx"));
+    onnx::write_model(&path, &model).expect("write model");
+    path
+}
+
+/// `n` synthetic road frames (JPEG, 96x72) in `dir/frames`.
+pub fn write_frames(dir: &Path, n: usize) -> PathBuf {
+    let out = dir.join("frames");
+    std::fs::create_dir_all(&out).unwrap();
+    for i in 0..n {
+        let rgb = render_road(96, 72, sample_view(i, n));
+        image::save_buffer(
+            out.join(format!("f{i:03}.png")),
+            &rgb,
+            96,
+            72,
+            image::ExtendedColorType::Rgb8,
+        )
+        .unwrap();
+    }
+    out
+}
+
+/// What a scripted policy does on its n-th call.
+pub enum Step {
+    Out([f32; 2]),
+    Fail(&'static str),
+    Panic,
+}
+
+/// A policy that follows a script (then repeats its last step).
+pub struct ScriptedPolicy {
+    contract: ModelContract,
+    script: Box<dyn FnMut(usize) -> Step + Send>,
+    calls: usize,
+}
+
+impl ScriptedPolicy {
+    pub fn new(script: impl FnMut(usize) -> Step + Send + 'static) -> Self {
+        Self {
+            contract: ModelContract {
+                input_size: 32,
+                ..ModelContract::default()
+            },
+            script: Box::new(script),
+            calls: 0,
+        }
+    }
+}
+
+impl Policy for ScriptedPolicy {
+    fn contract(&self) -> &ModelContract {
+        &self.contract
+    }
+    fn infer(&mut self, _input: &[f32]) -> Result<[f32; 2], PolicyError> {
+        let n = self.calls;
+        self.calls += 1;
+        match (self.script)(n) {
+            Step::Out(o) => Ok(o),
+            Step::Fail(m) => Err(PolicyError::Inference(m.into())),
+            Step::Panic => panic!("scripted policy panics on call {n}"),
+        }
+    }
+    fn describe(&self) -> String {
+        "scripted policy".into()
+    }
+}
+
+/// Gives `frames` frames at `period`, then either stalls (blocks until `release`) or fails.
+pub struct ScriptedSource {
+    pub frames: u64,
+    pub period: Duration,
+    pub then_fail: bool,
+    pub release: Arc<AtomicBool>,
+    pub clock: Arc<dyn Clock>,
+    seq: u64,
+}
+
+impl ScriptedSource {
+    pub fn new(frames: u64, period: Duration, then_fail: bool, clock: Arc<dyn Clock>) -> Self {
+        Self {
+            frames,
+            period,
+            then_fail,
+            release: Arc::new(AtomicBool::new(false)),
+            clock,
+            seq: 0,
+        }
+    }
+}
+
+impl FrameSource for ScriptedSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>, CameraError> {
+        if self.seq >= self.frames {
+            if self.then_fail {
+                return Err(CameraError::Other("camera unplugged (injected)".into()));
+            }
+            // A stalled camera: no frame, no error, until the test lets go.
+            while !self.release.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            return Ok(None);
+        }
+        std::thread::sleep(self.period);
+        let f = Frame {
+            seq: self.seq,
+            captured_at: self.clock.now(),
+            width: 32,
+            height: 32,
+            rgb: Arc::new(vec![128; 32 * 32 * 3]),
+        };
+        self.seq += 1;
+        Ok(Some(f))
+    }
+    fn describe(&self) -> String {
+        "scripted source".into()
+    }
+}
+
+/// An I2C bus that records every write and fails the transactions whose index is in
+/// `fail` (counting from 0), like a loose connector.
+#[derive(Clone, Default)]
+pub struct FlakyBus {
+    pub writes: Arc<Mutex<Vec<(u8, Vec<u8>, bool)>>>,
+    pub fail: Arc<Mutex<std::ops::Range<usize>>>,
+}
+
+#[derive(Debug)]
+pub struct BusError;
+
+impl embedded_hal::i2c::Error for BusError {
+    fn kind(&self) -> embedded_hal::i2c::ErrorKind {
+        embedded_hal::i2c::ErrorKind::Other
+    }
+}
+
+impl embedded_hal::i2c::ErrorType for FlakyBus {
+    type Error = BusError;
+}
+
+impl embedded_hal::i2c::I2c for FlakyBus {
+    fn transaction(
+        &mut self,
+        address: u8,
+        operations: &mut [embedded_hal::i2c::Operation<'_>],
+    ) -> Result<(), BusError> {
+        let mut w = self.writes.lock().unwrap();
+        let idx = w.len();
+        let failed = self.fail.lock().unwrap().contains(&idx);
+        for op in operations.iter() {
+            if let embedded_hal::i2c::Operation::Write(bytes) = op {
+                w.push((address, bytes.to_vec(), failed));
+            }
+        }
+        if failed { Err(BusError) } else { Ok(()) }
+    }
+}

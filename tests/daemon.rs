@@ -1,0 +1,324 @@
+//! The daemon end to end: real frames + a real ONNX model on ONNX Runtime + the steering
+//! law + a virtual or mocked motor output, and fault injection (stalled source, source
+//! error, NaN output, model error, panic, I2C error) asserting that the motors are stopped.
+//!
+//! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh; the test command runs it).
+
+mod common;
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use common::{FlakyBus, ScriptedPolicy, ScriptedSource, Step};
+use embedded_hal_mock::eh1::delay::NoopDelay;
+use jetpilot::camera::folder::FolderSource;
+use jetpilot::clock::{Clock, MonotonicClock};
+use jetpilot::control::{SteeringGains, SteeringLaw, WheelCommand};
+use jetpilot::drive::{self, DriveError, DriveParams, Outcome, Parts, RunEnd};
+use jetpilot::hw::motor_hat::{HatSettings, MotorHat};
+use jetpilot::hw::motors::{MotorEvent, MotorRecord};
+use jetpilot::hw::{HatLayout, LogMotors, MotorOutput};
+use jetpilot::policy::ort_policy::OrtOptions;
+use jetpilot::policy::runtime::Provider;
+use jetpilot::policy::{ModelContract, OrtPolicy, Policy, Preprocessor};
+
+const WATCHDOG: Duration = Duration::from_millis(200);
+/// Timer and scheduling slack allowed on top of the watchdog period on a busy 2-core machine.
+const SLACK: Duration = Duration::from_millis(150);
+
+fn params(gains: SteeringGains) -> DriveParams {
+    DriveParams {
+        gains,
+        watchdog: WATCHDOG,
+        max_frame_age: Duration::from_secs(5),
+        max_abs_output: 10.0,
+        stats_interval: Duration::ZERO,
+    }
+}
+
+fn gains() -> SteeringGains {
+    SteeringGains {
+        speed_gain: 0.3,
+        steering_gain: 0.25,
+        steering_kd: 0.1,
+        ..SteeringGains::default()
+    }
+}
+
+fn load(path: &std::path::Path) -> OrtPolicy {
+    OrtPolicy::load(
+        path,
+        &OrtOptions {
+            library: None,
+            providers: &[Provider::Cpu],
+            intra_threads: 1,
+            fallback_contract: &ModelContract::default(),
+        },
+    )
+    .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
+}
+
+fn block_on<F: std::future::Future>(f: F) -> F::Output {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(f)
+}
+
+/// Runs the daemon with log motors until `shutdown_after` (or the end of the source).
+fn run_logged(
+    source: Box<dyn jetpilot::camera::FrameSource>,
+    policy: Box<dyn Policy>,
+    clock: Arc<dyn Clock>,
+    shutdown_after: Duration,
+) -> (Outcome, MotorRecord) {
+    let motors = LogMotors::new(clock.clone());
+    let record = motors.record();
+    let parts = Parts {
+        source,
+        policy,
+        motors: Box::new(motors),
+        clock,
+    };
+    let out = block_on(async {
+        drive::run(parts, params(gains()), tokio::time::sleep(shutdown_after)).await
+    });
+    (out, record)
+}
+
+fn drives(record: &MotorRecord) -> Vec<(Duration, WheelCommand)> {
+    record
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(t, e)| match e {
+            MotorEvent::Drive(c) => Some((*t, *c)),
+            MotorEvent::Stop => None,
+        })
+        .collect()
+}
+
+/// The first stop after the last drive, and how long after it came.
+fn stop_after_last_drive(record: &MotorRecord) -> Duration {
+    let rec = record.lock().unwrap();
+    let last_drive = rec
+        .iter()
+        .rposition(|(_, e)| matches!(e, MotorEvent::Drive(_)))
+        .expect("at least one drive");
+    let (t_drive, _) = rec[last_drive];
+    let (t_stop, _) = rec[last_drive..]
+        .iter()
+        .find(|(_, e)| *e == MotorEvent::Stop)
+        .expect("a stop after the last drive");
+    *t_stop - t_drive
+}
+
+#[test]
+fn motor_commands_follow_the_model_through_the_steering_law() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 64, 3);
+    let frames = common::write_frames(dir.path(), 12);
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    // 10 fps against a ~2 ms model: no frame is skipped, so every frame gets a command.
+    let source = FolderSource::open(&frames, 10.0, false, clock.clone()).unwrap();
+    let (outcome, record) = run_logged(
+        Box::new(source),
+        Box::new(load(&model)),
+        clock,
+        Duration::from_secs(30),
+    );
+    let (end, report) = outcome.expect("clean run");
+    assert_eq!(end, RunEnd::SourceFinished);
+    assert_eq!(report.frames_skipped, 0, "{report}");
+    let got = drives(&record);
+    assert_eq!(got.len(), 12, "{report}");
+
+    // The same frames through a second session and the law, by hand.
+    let mut policy = load(&model);
+    let mut pre = Preprocessor::new(policy.contract());
+    let mut law = SteeringLaw::new(gains(), policy.contract().output);
+    let files = jetpilot::camera::folder::list_images(&frames).unwrap();
+    let mut steering_seen = Vec::new();
+    for (file, (_, cmd)) in files.iter().zip(&got) {
+        let img = image::open(file).unwrap().to_rgb8();
+        let input = pre.run(img.width(), img.height(), img.as_raw()).unwrap();
+        let out = policy.infer(input).unwrap();
+        let want = law.step(out, 0.1).wheels;
+        assert!(
+            (want.left - cmd.left).abs() < 1e-5 && (want.right - cmd.right).abs() < 1e-5,
+            "{file:?}: model {out:?} -> expected {want:?}, motors got {cmd:?}"
+        );
+        steering_seen.push(((cmd.left - cmd.right) * 1e4).round() as i64);
+    }
+    steering_seen.dedup();
+    assert!(
+        steering_seen.len() > 3,
+        "commands should vary with the frames: {steering_seen:?}"
+    );
+    assert_eq!(
+        record.lock().unwrap().last().unwrap().1,
+        MotorEvent::Stop,
+        "ends stopped"
+    );
+}
+
+#[test]
+fn a_stalled_camera_stops_the_motors_within_the_watchdog_period() {
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let source = ScriptedSource::new(5, Duration::from_millis(20), false, clock.clone());
+    let release = source.release.clone();
+    let policy = ScriptedPolicy::new(|_| Step::Out([0.2, 0.3]));
+    let (outcome, record) = run_logged(
+        Box::new(source),
+        Box::new(policy),
+        clock,
+        Duration::from_millis(900),
+    );
+    release.store(true, Ordering::Relaxed);
+    let (end, report) = outcome.expect("a stall is not a fault");
+    assert_eq!(end, RunEnd::Shutdown);
+    assert_eq!(report.watchdog_stops, 1);
+    assert_eq!(drives(&record).len(), 5);
+    let gap = stop_after_last_drive(&record);
+    assert!(
+        gap >= WATCHDOG && gap <= WATCHDOG + SLACK,
+        "stop {gap:?} after the last command"
+    );
+}
+
+/// Runs a fault scenario and checks: the run ends with the fault, and the motors were
+/// stopped within the watchdog period of the last command.
+fn assert_fault_stops(
+    source: ScriptedSource,
+    policy: ScriptedPolicy,
+    expect: impl Fn(&DriveError) -> bool,
+) {
+    let clock = source.clock.clone();
+    let (outcome, record) = run_logged(
+        Box::new(source),
+        Box::new(policy),
+        clock,
+        Duration::from_secs(10),
+    );
+    let (err, _) = outcome.expect_err("the fault ends the run");
+    assert!(expect(&err), "unexpected error: {err}");
+    let gap = stop_after_last_drive(&record);
+    assert!(
+        gap <= WATCHDOG + SLACK,
+        "stop {gap:?} after the last command"
+    );
+}
+
+fn source(frames: u64, then_fail: bool) -> ScriptedSource {
+    ScriptedSource::new(
+        frames,
+        Duration::from_millis(10),
+        then_fail,
+        Arc::new(MonotonicClock::new()),
+    )
+}
+
+#[test]
+fn a_nan_model_output_stops_the_motors() {
+    let policy =
+        ScriptedPolicy::new(|n| Step::Out(if n < 3 { [0.1, 0.2] } else { [f32::NAN, 0.2] }));
+    assert_fault_stops(source(20, false), policy, |e| {
+        matches!(e, DriveError::BadOutput { seq: 3, .. })
+    });
+}
+
+#[test]
+fn an_out_of_range_model_output_stops_the_motors() {
+    let policy = ScriptedPolicy::new(|n| Step::Out(if n < 2 { [0.1, 0.2] } else { [0.1, 1e9] }));
+    assert_fault_stops(source(20, false), policy, |e| {
+        matches!(e, DriveError::BadOutput { .. }) && e.to_string().contains("max_abs_output")
+    });
+}
+
+#[test]
+fn an_inference_error_stops_the_motors() {
+    let policy = ScriptedPolicy::new(|n| {
+        if n < 3 {
+            Step::Out([0.1, 0.2])
+        } else {
+            Step::Fail("device lost")
+        }
+    });
+    assert_fault_stops(source(20, false), policy, |e| {
+        matches!(e, DriveError::Policy(_)) && e.to_string().contains("device lost")
+    });
+}
+
+#[test]
+fn a_panicking_model_stops_the_motors() {
+    let policy = ScriptedPolicy::new(|n| {
+        if n < 3 {
+            Step::Out([0.1, 0.2])
+        } else {
+            Step::Panic
+        }
+    });
+    assert_fault_stops(source(20, false), policy, |e| {
+        matches!(e, DriveError::StageDied("inference"))
+    });
+}
+
+#[test]
+fn a_frame_source_error_stops_the_motors() {
+    let policy = ScriptedPolicy::new(|_| Step::Out([0.1, 0.2]));
+    assert_fault_stops(
+        source(4, true),
+        policy,
+        |e| matches!(e, DriveError::Camera(m) if m.contains("unplugged")),
+    );
+}
+
+#[test]
+fn an_i2c_error_stops_the_motors() {
+    // Adafruit HAT on a bus that fails 3 transactions in a row (1 try + 2 retries) once the
+    // robot is driving, then recovers: the daemon faults and its stop reaches the chip.
+    let bus = FlakyBus::default();
+    let hat = MotorHat::init(
+        bus.clone(),
+        HatSettings::for_layout(HatLayout::Adafruit),
+        &mut NoopDelay,
+    )
+    .unwrap();
+    let init_writes = bus.writes.lock().unwrap().len();
+    // The first drive writes 4 transactions per motor (PWM, IN low cached, IN high = 2);
+    // fail from the 10th transaction after init, i.e. during the second or third command.
+    *bus.fail.lock().unwrap() = init_writes + 10..init_writes + 13;
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let parts = Parts {
+        source: Box::new(source(50, false)),
+        policy: Box::new(ScriptedPolicy::new(|n| {
+            Step::Out(if n % 2 == 0 { [0.3, 0.2] } else { [-0.3, 0.2] })
+        })),
+        motors: Box::new(hat) as Box<dyn MotorOutput>,
+        clock,
+    };
+    let outcome = block_on(async {
+        drive::run(
+            parts,
+            params(gains()),
+            tokio::time::sleep(Duration::from_secs(10)),
+        )
+        .await
+    });
+    let (err, report) = outcome.expect_err("I2C failure is a fault");
+    assert!(matches!(err, DriveError::Motor(_)), "{err}");
+    assert!(err.to_string().contains("after 3 attempts"), "{err}");
+    assert!(report.commands_written >= 1);
+    // After the failures, the last six writes release every motor channel
+    // (full-off bit on OFF_H of channels 8, 10, 9, 13, 11, 12).
+    let writes = bus.writes.lock().unwrap();
+    let tail: Vec<&Vec<u8>> = writes.iter().rev().take(6).map(|(_, b, _)| b).collect();
+    let mut regs: Vec<u8> = tail.iter().map(|b| b[0]).collect();
+    regs.sort();
+    assert_eq!(regs, vec![0x28, 0x2C, 0x30, 0x34, 0x38, 0x3C]);
+    assert!(tail.iter().all(|b| b[1..] == [0x00, 0x10]));
+    assert!(writes.iter().rev().take(6).all(|(_, _, failed)| !failed));
+}
