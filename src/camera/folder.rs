@@ -14,10 +14,13 @@ use crate::clock::Clock;
 /// Decoded frames kept in memory at most (bytes of RGB8).
 const CACHE_BUDGET: usize = 256 << 20;
 
+/// A decoded frame: width, height, RGB8 pixels.
+type Decoded = (u32, u32, Arc<Vec<u8>>);
+
 pub struct FolderSource {
     dir: PathBuf,
     files: Vec<PathBuf>,
-    cache: Vec<Option<(u32, u32, Arc<Vec<u8>>)>>,
+    cache: Vec<Option<Decoded>>,
     cached_bytes: usize,
     period: Duration,
     repeat: bool,
@@ -81,7 +84,7 @@ impl FolderSource {
         self.files.is_empty()
     }
 
-    fn load(&mut self, index: usize) -> Result<(u32, u32, Arc<Vec<u8>>)> {
+    fn load(&mut self, index: usize) -> Result<Decoded> {
         if let Some(hit) = &self.cache[index] {
             return Ok(hit.clone());
         }

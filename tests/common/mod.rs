@@ -143,9 +143,12 @@ impl FrameSource for ScriptedSource {
 
 /// An I2C bus that records every write and fails the transactions whose index is in
 /// `fail` (counting from 0), like a loose connector.
+/// (address, bytes, whether the transaction was made to fail)
+pub type WriteLog = Arc<Mutex<Vec<(u8, Vec<u8>, bool)>>>;
+
 #[derive(Clone, Default)]
 pub struct FlakyBus {
-    pub writes: Arc<Mutex<Vec<(u8, Vec<u8>, bool)>>>,
+    pub writes: WriteLog,
     pub fail: Arc<Mutex<std::ops::Range<usize>>>,
 }
 

@@ -1,0 +1,39 @@
+//! The shipped configs load, validate, and describe the boards they are named after.
+
+use std::path::Path;
+
+use jetpilot::config::{Config, MotorBackend};
+use jetpilot::hw::HatLayout;
+
+fn load(name: &str) -> Config {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(name);
+    Config::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+#[test]
+fn jetbot_is_the_adafruit_hat_with_inverted_motors() {
+    let hat = load("jetbot.toml").motors.hat_settings();
+    assert_eq!(
+        (hat.layout, hat.address, hat.pwm_hz),
+        (HatLayout::Adafruit, 0x60, 1600.0)
+    );
+    assert!(hat.left.invert && hat.right.invert);
+}
+
+#[test]
+fn waveshare_and_yahboom_layouts() {
+    let ws = load("waveshare.toml").motors.hat_settings();
+    assert_eq!((ws.layout, ws.address), (HatLayout::Waveshare, 0x60));
+    let yb = load("yahboom.toml").motors.hat_settings();
+    assert_eq!((yb.layout, yb.address), (HatLayout::Yahboom, 0x40));
+}
+
+#[test]
+fn demo_runs_on_bundled_frames_with_virtual_motors() {
+    let cfg = load("demo.toml");
+    assert_eq!(cfg.motors.backend, MotorBackend::Log);
+    let frames = jetpilot::camera::folder::list_images(&cfg.camera.path).unwrap();
+    assert!(frames.len() >= 16, "{} frames", frames.len());
+}
