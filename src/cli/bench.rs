@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, Operation};
@@ -44,6 +44,8 @@ const BLOCK: usize = 10;
 const DT_S: f32 = 1.0 / 30.0;
 /// The budget for everything outside the network, per frame.
 const GOAL_MS: f32 = 1.0;
+/// Pause before a block that switches ONNX Runtime sessions (see [`run_interleaved`]).
+const SWITCH_PAUSE: Duration = Duration::from_millis(100);
 /// Seed of the random ResNet-18 weights.
 const SEED: u64 = 0;
 
@@ -96,6 +98,15 @@ impl Kind {
             Kind::Infer => format!("policy.infer {s}x{s}"),
             Kind::Law => "steering law + I2C encoding".to_string(),
             Kind::EndToEnd => format!("frame -> motor command end to end {s}x{s}"),
+        }
+    }
+
+    /// Which ONNX Runtime session the measurement runs (0: the bare one, 1: the policy's).
+    fn session(self) -> Option<u8> {
+        match self {
+            Kind::Bare => Some(0),
+            Kind::Infer | Kind::EndToEnd => Some(1),
+            Kind::Preprocess | Kind::Law => None,
         }
     }
 
@@ -307,6 +318,9 @@ impl Rig<'_> {
 
 /// Warm-up for each measurement, then round-robin blocks of [`BLOCK`] timed iterations,
 /// each block after one untimed iteration, the starting measurement rotating every round.
+/// Before a block that uses the other ONNX Runtime session than the last one, it pauses
+/// [`SWITCH_PAUSE`] so that session's worker threads stop spin-waiting: with two sessions
+/// in one process (the daemon has one) they would otherwise take a core from the next run.
 fn run_interleaved(rig: &mut Rig<'_>, warmup: usize, n: usize) -> anyhow::Result<[Vec<f32>; 5]> {
     for kind in Kind::ALL {
         for _ in 0..warmup {
@@ -314,12 +328,19 @@ fn run_interleaved(rig: &mut Rig<'_>, warmup: usize, n: usize) -> anyhow::Result
         }
     }
     let mut samples: [Vec<f32>; 5] = Default::default();
+    let mut last_session = None;
     for round in 0..n.div_ceil(BLOCK) {
         for j in 0..Kind::ALL.len() {
             let kind = Kind::ALL[(round + j) % Kind::ALL.len()];
+            if let Some(session) = kind.session() {
+                if last_session.is_some_and(|last| last != session) {
+                    std::thread::sleep(SWITCH_PAUSE);
+                }
+                last_session = Some(session);
+            }
             let out = &mut samples[kind as usize];
             let todo = (n - out.len()).min(BLOCK);
-            rig.step(kind)?; // settles caches and the other session's spinning threads
+            rig.step(kind)?; // untimed: brings caches and the thread pool back
             for _ in 0..todo {
                 let t = Instant::now();
                 rig.step(kind)?;
@@ -330,11 +351,25 @@ fn run_interleaved(rig: &mut Rig<'_>, warmup: usize, n: usize) -> anyhow::Result
     Ok(samples)
 }
 
+/// Median over rounds of (median of a block of `a` - median of the block of `b` of the same
+/// round): a paired estimate that slower phases of the machine affect much less than a
+/// difference of the overall medians.
+fn paired_difference(a: &[f32], b: &[f32]) -> f32 {
+    let mut diffs: Vec<f32> = a
+        .chunks(BLOCK)
+        .zip(b.chunks(BLOCK))
+        .map(|(x, y)| summarise(&mut x.to_vec()).p50 - summarise(&mut y.to_vec()).p50)
+        .collect();
+    summarise(&mut diffs).p50
+}
+
 /// The results for one input size.
 struct SizeResult {
     size: u32,
     contract: String,
     stats: [Stats; 5],
+    /// [`paired_difference`] of e2e and the bare run.
+    paired_overhead: f32,
     bytes_per_command: f64,
     transactions_per_command: f64,
     rejected: usize,
@@ -417,9 +452,14 @@ fn bench_model(
     tracing::info!("measuring {s}x{s}");
     let mut samples = run_interleaved(&mut rig, args.warmup as usize, args.iterations as usize)?;
     let commands = rig.calls[Kind::Law as usize].max(1) as f64;
+    let paired_overhead = paired_difference(
+        &samples[Kind::EndToEnd as usize],
+        &samples[Kind::Bare as usize],
+    );
     Ok(SizeResult {
         size: s,
         contract: contract.to_string(),
+        paired_overhead,
         stats: samples.each_mut().map(|v| stats(v)),
         bytes_per_command: counters_alone.bytes.load(Ordering::Relaxed) as f64 / commands,
         transactions_per_command: counters_alone.transactions.load(Ordering::Relaxed) as f64
@@ -429,8 +469,9 @@ fn bench_model(
     })
 }
 
-/// The first `key : value` line of /proc/cpuinfo among `keys`, and the board model if the
-/// device tree names one (Jetson, Raspberry Pi).
+/// The CPU as /proc/cpuinfo names it (`model name`, or `Hardware` / `Processor` on some
+/// ARM kernels), the CPUs this process may use, and the board if the device tree names one
+/// (Jetson, Raspberry Pi).
 fn cpu_description() -> String {
     let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
     let field = |key: &str| {
@@ -470,7 +511,8 @@ struct Header {
     version: String,
     cpu: String,
     threads: String,
-    method: String,
+    /// How the numbers were taken, one line each.
+    method: Vec<String>,
 }
 
 fn header(library: &Path, args: &BenchArgs) -> Header {
@@ -483,12 +525,21 @@ fn header(library: &Path, args: &BenchArgs) -> Header {
         } else {
             args.threads.to_string()
         },
-        method: format!(
-            "{} warm-up + {} timed iterations each; the five measurements run round-robin in blocks of {BLOCK} \
-             (the first of each block untimed, the starting one rotating), so machine noise falls on all alike; \
-             nearest-rank percentiles",
-            args.warmup, args.iterations
-        ),
+        method: vec![
+            format!(
+                "{} warm-up + {} timed iterations of each measurement; nearest-rank percentiles",
+                args.warmup, args.iterations
+            ),
+            format!(
+                "the five run round-robin in blocks of {BLOCK} (the first of each block untimed, the starting one \
+                 rotating), so machine noise falls on all alike"
+            ),
+            format!(
+                "{} ms pause when switching between the bare and the policy's session, so the idle one's \
+                 threads stop spin-waiting",
+                SWITCH_PAUSE.as_millis()
+            ),
+        ],
     }
 }
 
@@ -500,7 +551,9 @@ fn print_header(h: &Header) {
         h.threads
     );
     println!("  CPU           {}", h.cpu);
-    println!("  method        {}", h.method);
+    for (i, line) in h.method.iter().enumerate() {
+        println!("  {:<13} {line}", if i == 0 { "method" } else { "" });
+    }
 }
 
 fn print_result(r: &SizeResult) {
@@ -544,6 +597,10 @@ fn print_result(r: &SizeResult) {
         r.stage_sum(),
         r.median(Kind::Infer) - r.median(Kind::Bare)
     );
+    println!(
+        "  e2e - bare run paired per round (median of block-median differences): {:.3} ms",
+        r.paired_overhead
+    );
 }
 
 /// A JSON string literal.
@@ -565,6 +622,15 @@ fn json_str(s: &str) -> String {
     out
 }
 
+/// A JSON number, or `null` for NaN and infinities (a broken model's outputs).
+fn json_num(v: f32) -> String {
+    if v.is_finite() {
+        v.to_string()
+    } else {
+        "null".into()
+    }
+}
+
 fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
     let mut records = Vec::new();
     for r in results {
@@ -584,16 +650,17 @@ fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
             ));
         }
         records.push(format!(
-            "    {{\"size\": {}, \"measurement\": \"overhead\", \"e2e_minus_bare_median_ms\": {:.6}, \"stage_sum_median_ms\": {:.6}, \"goal_ms\": {GOAL_MS:.1}, \"pass\": {}, \"i2c_bytes_per_command\": {:.2}, \"i2c_transactions_per_command\": {:.2}, \"rejected_frames\": {}, \"outputs\": [{}, {}]}}",
+            "    {{\"size\": {}, \"measurement\": \"overhead\", \"e2e_minus_bare_median_ms\": {:.6}, \"e2e_minus_bare_paired_ms\": {:.6}, \"stage_sum_median_ms\": {:.6}, \"goal_ms\": {GOAL_MS:.1}, \"pass\": {}, \"i2c_bytes_per_command\": {:.2}, \"i2c_transactions_per_command\": {:.2}, \"rejected_frames\": {}, \"outputs\": [{}, {}]}}",
             r.size,
             r.overhead(),
+            r.paired_overhead,
             r.stage_sum(),
             r.overhead() <= GOAL_MS,
             r.bytes_per_command,
             r.transactions_per_command,
             r.rejected,
-            r.outputs[0],
-            r.outputs[1]
+            json_num(r.outputs[0]),
+            json_num(r.outputs[1])
         ));
     }
     format!(
@@ -605,16 +672,13 @@ fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
         args.threads,
         args.iterations,
         args.warmup,
-        json_str(&h.method),
+        json_str(&h.method.join("; ")),
         records.join(",\n")
     )
 }
 
 pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
     let (library, env) = runtime::environment(None)?;
-    let h = header(library, &args);
-    print_header(&h);
-
     let frames: Vec<Vec<u8>> = (0..FRAMES)
         .map(|i| render_road(FRAME_W, FRAME_H, sample_view(i, FRAMES)))
         .collect();
@@ -628,6 +692,8 @@ pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 .collect::<anyhow::Result<_>>()?
         }
     };
+    let h = header(library, &args);
+    print_header(&h);
     let mut results = Vec::new();
     for model in &models {
         let r = bench_model(env, &args, model, &frames)
