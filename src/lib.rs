@@ -17,3 +17,4 @@ pub mod control;
 pub mod drive;
 pub mod hw;
 pub mod policy;
+pub mod sim;
