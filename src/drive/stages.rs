@@ -14,10 +14,10 @@ use tokio_util::sync::CancellationToken;
 
 use super::DriveError;
 use crate::camera::latest::{CloseGuard, SourceEnd, Wait};
-use crate::camera::{FrameSource, LatestFrame};
+use crate::camera::{Frame, FrameSource, LatestFrame};
 use crate::clock::Clock;
 use crate::control::{SteeringGains, SteeringLaw, WheelCommand};
-use crate::policy::{Policy, Preprocessor};
+use crate::policy::{ModelContract, Policy, Preprocessor};
 
 /// A wheel command with where it came from and what it cost.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,6 +70,76 @@ pub struct InferParams {
     pub clock: Arc<dyn Clock>,
 }
 
+/// The daemon's per-frame work, shared by the threaded daemon and the simulator's
+/// lockstep loop: preprocess -> policy -> output check -> steering law.
+pub struct FrameProcessor {
+    pre: Preprocessor,
+    law: SteeringLaw,
+    last_capture: Option<Duration>,
+    max_abs_output: f32,
+}
+
+impl FrameProcessor {
+    pub fn new(contract: &ModelContract, gains: SteeringGains, max_abs_output: f32) -> Self {
+        Self {
+            pre: Preprocessor::new(contract),
+            law: SteeringLaw::new(gains, contract.output),
+            last_capture: None,
+            max_abs_output,
+        }
+    }
+
+    pub fn law_mut(&mut self) -> &mut SteeringLaw {
+        &mut self.law
+    }
+
+    /// Turns one frame into a command, timing each step on `clock`.
+    pub fn process(
+        &mut self,
+        policy: &mut dyn Policy,
+        frame: &Frame,
+        clock: &dyn Clock,
+    ) -> Result<Command, DriveError> {
+        let t0 = clock.now();
+        let input = self
+            .pre
+            .run(frame.width, frame.height, &frame.rgb)
+            .map_err(|source| DriveError::Preprocess {
+                seq: frame.seq,
+                source,
+            })?;
+        let t1 = clock.now();
+        let outputs = policy.infer(input)?;
+        let t2 = clock.now();
+        if outputs
+            .iter()
+            .any(|v| !v.is_finite() || v.abs() > self.max_abs_output)
+        {
+            return Err(DriveError::BadOutput {
+                seq: frame.seq,
+                outputs,
+                limit: self.max_abs_output,
+            });
+        }
+        let dt = self
+            .last_capture
+            .map(|t| frame.captured_at.saturating_sub(t).as_secs_f32())
+            .unwrap_or(0.0);
+        self.last_capture = Some(frame.captured_at);
+        let wheels = self.law.step(outputs, dt).wheels;
+        let t3 = clock.now();
+        Ok(Command {
+            seq: frame.seq,
+            captured_at: frame.captured_at,
+            outputs,
+            wheels,
+            preprocess: t1.saturating_sub(t0),
+            inference: t2.saturating_sub(t1),
+            control: t3.saturating_sub(t2),
+        })
+    }
+}
+
 /// Takes frames from the slot until it closes, `cancel` fires or the actuator is gone.
 pub fn infer(
     mut policy: Box<dyn Policy>,
@@ -79,9 +149,7 @@ pub fn infer(
     params: InferParams,
 ) {
     let contract = policy.contract().clone();
-    let mut pre = Preprocessor::new(&contract);
-    let mut law = SteeringLaw::new(params.gains, contract.output);
-    let mut last_capture: Option<Duration> = None;
+    let mut processor = FrameProcessor::new(&contract, params.gains, params.max_abs_output);
     let clock = params.clock;
     let send = |msg| tx.blocking_send(msg).is_ok();
     while !cancel.is_cancelled() {
@@ -97,53 +165,14 @@ pub fn infer(
             }
             Wait::Frame(f) => f,
         };
-        let t0 = clock.now();
-        let input = match pre.run(frame.width, frame.height, &frame.rgb) {
-            Ok(i) => i,
+        let msg = match processor.process(policy.as_mut(), &frame, clock.as_ref()) {
+            Ok(cmd) => StageMsg::Command(cmd),
             Err(e) => {
-                send(StageMsg::Fault(DriveError::Preprocess {
-                    seq: frame.seq,
-                    source: e,
-                }));
+                send(StageMsg::Fault(e));
                 return;
             }
         };
-        let t1 = clock.now();
-        let outputs = match policy.infer(input) {
-            Ok(o) => o,
-            Err(e) => {
-                send(StageMsg::Fault(DriveError::Policy(e)));
-                return;
-            }
-        };
-        let t2 = clock.now();
-        if outputs
-            .iter()
-            .any(|v| !v.is_finite() || v.abs() > params.max_abs_output)
-        {
-            send(StageMsg::Fault(DriveError::BadOutput {
-                seq: frame.seq,
-                outputs,
-                limit: params.max_abs_output,
-            }));
-            return;
-        }
-        let dt = last_capture
-            .map(|t| frame.captured_at.saturating_sub(t).as_secs_f32())
-            .unwrap_or(0.0);
-        last_capture = Some(frame.captured_at);
-        let wheels = law.step(outputs, dt).wheels;
-        let t3 = clock.now();
-        let cmd = Command {
-            seq: frame.seq,
-            captured_at: frame.captured_at,
-            outputs,
-            wheels,
-            preprocess: t1.saturating_sub(t0),
-            inference: t2.saturating_sub(t1),
-            control: t3.saturating_sub(t2),
-        };
-        if !send(StageMsg::Command(cmd)) {
+        if !send(msg) {
             return; // the actuator has finished
         }
     }
