@@ -52,6 +52,8 @@ pub struct Config {
     pub motors: MotorsConfig,
     pub safety: SafetyConfig,
     pub log: LogConfig,
+    /// The simulator (`jetpilot sim`, `jetpilot eval`).
+    pub sim: crate::sim::setup::SimConfig,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -355,6 +357,9 @@ impl Config {
             }
         };
         fix(&mut self.camera.path);
+        if let Some(p) = self.sim.track.as_mut() {
+            fix(p);
+        }
         fix(&mut self.model.path);
         if let Some(p) = self.runtime.library.as_mut() {
             fix(p);

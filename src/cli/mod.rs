@@ -5,6 +5,7 @@ mod bench;
 mod model;
 mod run;
 mod samples;
+mod sim;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -47,6 +48,12 @@ enum Command {
     /// Measure preprocessing, inference, the steering law + I2C encoding, and frame -> motor
     /// command end to end, beside a bare ONNX Runtime run.
     Bench(bench::BenchArgs),
+    /// Drive in the replayed-frame simulator: the daemon's own per-frame work and motor
+    /// driver on a virtual PCA9685, on a simulated clock.
+    Sim(sim::SimArgs),
+    /// Score a model with the paper's protocol: a 600 s simulated test, interventions,
+    /// autonomy value, reward count, laps, mean speed.
+    Eval(sim::EvalArgs),
     /// Write synthetic road frames (a JetBot-mat road bending left and right) to try `run`
     /// without a camera.
     Samples(samples::SamplesArgs),
@@ -62,6 +69,8 @@ pub fn main() -> ExitCode {
         Command::Model(cmd) => model::main(cmd),
         Command::Bench(args) => bench::main(args),
         Command::Samples(args) => samples::main(args),
+        Command::Sim(args) => sim::sim(args),
+        Command::Eval(args) => sim::eval(args),
     };
     match result {
         Ok(code) => code,

@@ -1,1 +1,393 @@
-//! (in progress)
+//! The simulated JetBot camera: a pinhole model of the wide CSI lens, mounted on the robot,
+//! and the geometry that links its pixels with points on the flat mat.
+//!
+//! This module owns the camera's placement on the robot (height, forward offset, downward
+//! tilt), its intrinsics (square pixels, principal point at the image centre, focal length
+//! from the horizontal field of view), pixel <-> ground conversions, and the ground-plane
+//! homography that `render` and `synth` build on.
+//!
+//! Conventions:
+//! - World: metres on the mat, x right, y up, z out of the mat (the ground is z = 0).
+//! - Robot frame: origin at the axle centre on the ground, `forward` along the heading,
+//!   `left` 90 degrees counter-clockwise from it.
+//! - Camera frame (computer-vision convention): x right, y down, z along the optical axis.
+//! - Pixels: continuous coordinates `(u, v)` in pixels, `u` to the right, `v` down, with
+//!   the top-left corner of the image at (0, 0); pixel `(i, j)` covers
+//!   `[i, i + 1) x [j, j + 1)` and has its centre at `(i + 0.5, j + 0.5)`. The principal
+//!   point is `(width / 2, height / 2)`.
+
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::{Pose2, SimError};
+
+/// Ground points farther than this (horizontally, from the point under the camera) are
+/// treated as "not on the ground": the renderer draws a wall there.
+pub const MAX_GROUND_RANGE_M: f32 = 5.0;
+
+/// A pinhole camera mounted on the robot, looking forward and pitched down.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraModel {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Horizontal field of view in degrees (a JetBot's wide lens, modelled as a pinhole).
+    pub hfov_deg: f32,
+    /// Height of the optical centre above the ground, metres.
+    pub height_m: f32,
+    /// Downward pitch of the optical axis below the horizontal, degrees.
+    pub tilt_deg: f32,
+    /// Distance of the optical centre ahead of the axle centre, metres.
+    pub forward_m: f32,
+}
+
+impl Default for CameraModel {
+    fn default() -> Self {
+        Self {
+            width: 224,
+            height: 224,
+            hfov_deg: 120.0,
+            height_m: 0.10,
+            tilt_deg: 25.0,
+            forward_m: 0.05,
+        }
+    }
+}
+
+/// The camera's placement in the world (f64 internally for accurate round trips).
+#[derive(Debug, Clone, Copy)]
+struct Extrinsics {
+    /// Optical centre in world metres.
+    centre: Vector3<f64>,
+    /// Camera-to-world rotation; columns are the camera's right, down and forward axes.
+    rot: Matrix3<f64>,
+}
+
+impl CameraModel {
+    /// Checks that the model describes a usable camera.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |what: String| Err(SimError::Invalid(format!("camera: {what}")));
+        if !(2..=8192).contains(&self.width) || !(2..=8192).contains(&self.height) {
+            return bad(format!(
+                "image size {}x{} must be 2..=8192 on each side",
+                self.width, self.height
+            ));
+        }
+        if !(self.hfov_deg.is_finite() && self.hfov_deg > 1.0 && self.hfov_deg < 170.0) {
+            return bad(format!("hfov_deg {} must be in (1, 170)", self.hfov_deg));
+        }
+        if !(self.height_m.is_finite() && self.height_m > 0.0) {
+            return bad(format!("height_m {} must be > 0", self.height_m));
+        }
+        if !(self.tilt_deg.is_finite() && self.tilt_deg > -89.0 && self.tilt_deg < 89.0) {
+            return bad(format!("tilt_deg {} must be in (-89, 89)", self.tilt_deg));
+        }
+        if !self.forward_m.is_finite() {
+            return bad(format!("forward_m {} must be finite", self.forward_m));
+        }
+        Ok(())
+    }
+
+    fn focal64(&self) -> f64 {
+        (self.width as f64 / 2.0) / (self.hfov_deg as f64 / 2.0).to_radians().tan()
+    }
+
+    /// Focal length in pixels (the same along u and v: square pixels).
+    pub fn focal_px(&self) -> f32 {
+        self.focal64() as f32
+    }
+
+    /// Principal point `(cu, cv)` in pixels: the image centre.
+    pub fn principal_point(&self) -> (f32, f32) {
+        (self.width as f32 / 2.0, self.height as f32 / 2.0)
+    }
+
+    /// Intrinsic matrix K: camera-frame point (x right, y down, z forward) -> pixel
+    /// `(u w, v w, w)` with `w = z`.
+    pub fn intrinsics(&self) -> Matrix3<f32> {
+        self.intrinsics64().cast()
+    }
+
+    fn intrinsics64(&self) -> Matrix3<f64> {
+        let f = self.focal64();
+        let (cu, cv) = (self.width as f64 / 2.0, self.height as f64 / 2.0);
+        Matrix3::new(f, 0.0, cu, 0.0, f, cv, 0.0, 0.0, 1.0)
+    }
+
+    /// Row `v` (pixels, may be fractional or negative) of the horizon: the ground is seen
+    /// only below it (`v > horizon_v`). The camera has no roll, so the horizon is a row.
+    pub fn horizon_v(&self) -> f32 {
+        let cv = self.height as f64 / 2.0;
+        (cv - self.focal64() * (self.tilt_deg as f64).to_radians().tan()) as f32
+    }
+
+    fn extrinsics(&self, pose: &Pose2) -> Extrinsics {
+        let (s, c) = (pose.heading as f64).sin_cos();
+        let fwd = Vector3::new(c, s, 0.0);
+        let up = Vector3::new(0.0, 0.0, 1.0);
+        let right = Vector3::new(s, -c, 0.0);
+        let (st, ct) = (self.tilt_deg as f64).to_radians().sin_cos();
+        // Optical axis pitched down by the tilt; "down" in the image completes the frame.
+        let z_axis = fwd * ct - up * st;
+        let y_axis = -fwd * st - up * ct;
+        let centre = Vector3::new(
+            pose.x as f64 + self.forward_m as f64 * c,
+            pose.y as f64 + self.forward_m as f64 * s,
+            self.height_m as f64,
+        );
+        Extrinsics {
+            centre,
+            rot: Matrix3::from_columns(&[right, y_axis, z_axis]),
+        }
+    }
+
+    /// World position of the optical centre (metres) for a robot at `pose`.
+    pub fn position(&self, pose: &Pose2) -> Vector3<f32> {
+        self.extrinsics(pose).centre.cast()
+    }
+
+    /// Camera-to-world rotation for a robot at `pose`: its columns are the camera's right
+    /// (image +u), down (image +v) and optical axis, in world coordinates. World to camera
+    /// is `R^T (p - position)`.
+    pub fn rotation(&self, pose: &Pose2) -> Matrix3<f32> {
+        self.extrinsics(pose).rot.cast()
+    }
+
+    fn pixel_to_ground64(&self, pose: &Pose2, u: f32, v: f32) -> Option<(f64, f64)> {
+        let e = self.extrinsics(pose);
+        let f = self.focal64();
+        let d_cam = Vector3::new(
+            (u as f64 - self.width as f64 / 2.0) / f,
+            (v as f64 - self.height as f64 / 2.0) / f,
+            1.0,
+        );
+        let d = e.rot * d_cam;
+        if !(d.z < -1e-12) {
+            return None; // at or above the horizon (or NaN input)
+        }
+        let s = -e.centre.z / d.z;
+        let (dx, dy) = (s * d.x, s * d.y);
+        if dx * dx + dy * dy > (MAX_GROUND_RANGE_M as f64).powi(2) {
+            return None;
+        }
+        Some((e.centre.x + dx, e.centre.y + dy))
+    }
+
+    /// The ground point (world metres) seen at pixel `(u, v)` from a robot at `pose`.
+    /// `None` at or above the horizon, or farther than [`MAX_GROUND_RANGE_M`] from the
+    /// point under the camera.
+    pub fn pixel_to_ground(&self, pose: &Pose2, u: f32, v: f32) -> Option<(f32, f32)> {
+        self.pixel_to_ground64(pose, u, v)
+            .map(|(x, y)| (x as f32, y as f32))
+    }
+
+    /// The pixel `(u, v)` where the ground point `(x, y)` (world metres) appears from a
+    /// robot at `pose`. `None` when the point is behind the camera (or on its image
+    /// plane). The pixel may lie outside the image.
+    pub fn ground_to_pixel(&self, pose: &Pose2, x: f32, y: f32) -> Option<(f32, f32)> {
+        let e = self.extrinsics(pose);
+        let p = e.rot.transpose() * (Vector3::new(x as f64, y as f64, 0.0) - e.centre);
+        if !(p.z > 1e-9) {
+            return None;
+        }
+        let f = self.focal64();
+        Some((
+            (self.width as f64 / 2.0 + f * p.x / p.z) as f32,
+            (self.height as f64 / 2.0 + f * p.y / p.z) as f32,
+        ))
+    }
+
+    /// The ground point in the robot frame, `(forward, left)` metres from the axle
+    /// centre, seen at pixel `(u, v)`. It does not depend on the pose (flat ground, fixed
+    /// mount), so per-pixel tables can be built once. Same `None` cases as
+    /// [`Self::pixel_to_ground`].
+    pub fn pixel_to_robot_ground(&self, u: f32, v: f32) -> Option<(f32, f32)> {
+        self.pixel_to_ground(&Pose2::default(), u, v)
+    }
+
+    fn homography64(&self, pose: &Pose2) -> Matrix3<f64> {
+        let e = self.extrinsics(pose);
+        let c = e.centre;
+        // [e1 | e2 | -C]: ground (x, y, 1) -> world point minus the optical centre.
+        let lift = Matrix3::new(1.0, 0.0, -c.x, 0.0, 1.0, -c.y, 0.0, 0.0, -c.z);
+        self.intrinsics64() * e.rot.transpose() * lift
+    }
+
+    /// Ground-plane homography `H = K R^T [e1 | e2 | -C]` for a robot at `pose`: maps the
+    /// homogeneous ground point `(x, y, 1)` (world metres) to the pixel `(u w, v w, w)`,
+    /// where `w` is the depth along the optical axis (metres; `w <= 0`: behind the camera).
+    pub fn ground_homography(&self, pose: &Pose2) -> Matrix3<f32> {
+        self.homography64(pose).cast()
+    }
+
+    /// Inverse of [`Self::ground_homography`]: maps the homogeneous pixel `(u, v, 1)` to
+    /// `(x s, y s, s)` on the ground plane. Only pixels below the horizon give `s > 0`
+    /// (a point in front of the camera). Always exists for a camera above the ground.
+    pub fn ground_homography_inverse(&self, pose: &Pose2) -> Matrix3<f32> {
+        let e = self.extrinsics(pose);
+        let c = e.centre;
+        // [e1 | e2 | -C]^-1 in closed form (c.z > 0 is checked by `validate`).
+        let lift_inv = Matrix3::new(
+            1.0,
+            0.0,
+            -c.x / c.z,
+            0.0,
+            1.0,
+            -c.y / c.z,
+            0.0,
+            0.0,
+            -1.0 / c.z,
+        );
+        let f = self.focal64();
+        let (cu, cv) = (self.width as f64 / 2.0, self.height as f64 / 2.0);
+        let k_inv = Matrix3::new(1.0 / f, 0.0, -cu / f, 0.0, 1.0 / f, -cv / f, 0.0, 0.0, 1.0);
+        (lift_inv * e.rot * k_inv).cast()
+    }
+
+    /// Homography from the robot-frame ground point `(forward, left, 1)` to the pixel
+    /// `(u w, v w, w)`; pose-independent.
+    pub fn robot_ground_homography(&self) -> Matrix3<f32> {
+        self.ground_homography(&Pose2::default())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn apply(h: &Matrix3<f32>, x: f32, y: f32) -> (f32, f32, f32) {
+        let p = h * Vector3::new(x, y, 1.0);
+        (p.x, p.y, p.z)
+    }
+
+    #[test]
+    fn round_trip_pixel_ground_pixel() {
+        let cam = CameraModel::default();
+        cam.validate().unwrap();
+        let hv = cam.horizon_v();
+        let poses = [
+            Pose2::new(0.0, 0.0, 0.0),
+            Pose2::new(0.9, 1.3, 1.1),
+            Pose2::new(1.5, 2.2, -2.7),
+        ];
+        let mut checked = 0;
+        for pose in &poses {
+            let mut v = hv.ceil() + 0.5;
+            while v < cam.height as f32 {
+                let mut u = 0.5;
+                while u < cam.width as f32 {
+                    if let Some((x, y)) = cam.pixel_to_ground(pose, u, v) {
+                        let (u2, v2) = cam.ground_to_pixel(pose, x, y).unwrap();
+                        assert!(
+                            (u2 - u).abs() < 1e-3 && (v2 - v).abs() < 1e-3,
+                            "({u}, {v}) -> ({x}, {y}) -> ({u2}, {v2})"
+                        );
+                        // The homography agrees with the direct projection.
+                        let (a, b, w) = apply(&cam.ground_homography(pose), x, y);
+                        assert!(w > 0.0);
+                        assert!((a / w - u).abs() < 2e-3 && (b / w - v).abs() < 2e-3);
+                        checked += 1;
+                    }
+                    u += 7.0;
+                }
+                v += 3.0;
+            }
+        }
+        assert!(checked > 1000, "only {checked} pixels checked");
+    }
+
+    #[test]
+    fn homography_inverse_is_inverse() {
+        let cam = CameraModel::default();
+        let pose = Pose2::new(0.4, 1.7, 2.0);
+        let h = cam.ground_homography(&pose);
+        let hi = cam.ground_homography_inverse(&pose);
+        for (x, y) in [(0.4, 2.0), (0.1, 1.9), (0.6, 2.5), (-0.5, 3.0)] {
+            let (a, b, w) = apply(&h, x, y);
+            let (x2, y2, s) = apply(&hi, a / w, b / w);
+            assert!((x2 / s - x).abs() < 1e-4 && (y2 / s - y).abs() < 1e-4);
+        }
+        // Pixel -> ground through the inverse homography matches the ray intersection.
+        let (u, v) = (150.5, 180.5);
+        let (gx, gy, s) = apply(&hi, u, v);
+        assert!(s > 0.0);
+        let (x, y) = cam.pixel_to_ground(&pose, u, v).unwrap();
+        assert!((gx / s - x).abs() < 1e-4 && (gy / s - y).abs() < 1e-4);
+    }
+
+    #[test]
+    fn centre_column_looks_straight_ahead() {
+        let cam = CameraModel::default();
+        let (cu, _) = cam.principal_point();
+        let pose = Pose2::new(1.0, 1.0, 0.7);
+        let (s, c) = pose.heading.sin_cos();
+        for v in [100.5f32, 130.0, 170.0, 223.5] {
+            let (x, y) = cam.pixel_to_ground(&pose, cu, v).unwrap();
+            let (dx, dy) = (x - pose.x, y - pose.y);
+            let lateral = -s * dx + c * dy;
+            let forward = c * dx + s * dy;
+            assert!(lateral.abs() < 1e-5, "v {v}: lateral {lateral}");
+            assert!(forward > cam.forward_m, "v {v}: forward {forward}");
+        }
+        // Left of the centre column sees ground to the left.
+        let (f, l) = cam.pixel_to_robot_ground(cu - 40.0, 150.0).unwrap();
+        assert!(f > 0.0 && l > 0.0);
+    }
+
+    #[test]
+    fn ground_ahead_projects_below_the_centre_and_horizon() {
+        let cam = CameraModel::default();
+        let pose = Pose2::new(0.5, 0.5, std::f32::consts::FRAC_PI_2);
+        let (cu, cv) = cam.principal_point();
+        let hv = cam.horizon_v();
+        // The optical axis meets the ground height / tan(tilt) ahead of the camera
+        // (0.214 m with the defaults): that point is the image centre, nearer ground lies
+        // below it, farther ground above it but still below the horizon.
+        let axis = cam.height_m / cam.tilt_deg.to_radians().tan();
+        let y_axis = 0.5 + cam.forward_m + axis;
+        let (u, v) = cam.ground_to_pixel(&pose, 0.5, y_axis).unwrap();
+        assert!((u - cu).abs() < 1e-3 && (v - cv).abs() < 1e-3, "({u}, {v})");
+        let (u, v) = cam.ground_to_pixel(&pose, 0.5, 0.65).unwrap();
+        assert!((u - cu).abs() < 1e-3, "u {u}");
+        assert!(
+            v > cv,
+            "0.15 m ahead: v {v} should be below the centre row {cv}"
+        );
+        let (_, v) = cam.ground_to_pixel(&pose, 0.5, 0.8).unwrap();
+        assert!(
+            v < cv && v > hv,
+            "0.3 m ahead: v {v} between horizon {hv} and centre"
+        );
+        // Without tilt, any ground point ahead is below the centre, which is the horizon.
+        let level = CameraModel {
+            tilt_deg: 0.0,
+            ..cam
+        };
+        let (_, v) = level.ground_to_pixel(&pose, 0.5, 0.8).unwrap();
+        assert!(v > cv, "untilted, 0.3 m ahead: v {v}");
+        assert!((level.horizon_v() - cv).abs() < 1e-4);
+        // Tilting down moves the horizon up; nothing is seen above it.
+        assert!(hv < cv);
+        assert!(cam.pixel_to_ground(&pose, cu, hv - 1.0).is_none());
+        // Behind the camera.
+        assert!(cam.ground_to_pixel(&pose, 0.5, 0.2).is_none());
+        // Too far.
+        assert!(cam.pixel_to_ground(&pose, cu, hv + 0.01).is_none());
+    }
+
+    #[test]
+    fn validate_rejects_nonsense() {
+        let mut cam = CameraModel::default();
+        cam.height_m = 0.0;
+        assert!(cam.validate().is_err());
+        let mut cam = CameraModel::default();
+        cam.hfov_deg = 180.0;
+        assert!(cam.validate().is_err());
+        let cam: CameraModel = serde_json::from_str(r#"{"width": 96, "height": 96}"#).unwrap();
+        assert_eq!(cam.width, 96);
+        assert_eq!(cam.tilt_deg, 25.0);
+        assert!(serde_json::from_str::<CameraModel>(r#"{"fov": 3}"#).is_err());
+    }
+}

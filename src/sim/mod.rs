@@ -17,12 +17,16 @@
 //! direction of travel.
 
 pub mod camera;
+pub mod closed_loop;
+pub mod expert;
 pub mod render;
 pub mod reward;
 pub mod robot;
+pub mod setup;
 pub mod synth;
 pub mod track;
 pub mod virtual_hat;
+pub mod world;
 
 use serde::{Deserialize, Serialize};
 

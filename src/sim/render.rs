@@ -1,1 +1,862 @@
-//! (in progress)
+//! Rendering the mat: the painted texture, the robot camera's view of it at a pose, optional
+//! photometric effects, and a top-down picture of a drive for people to look at.
+//!
+//! This module owns:
+//! - [`MatTexture`]: the mat's paint (from `PaintStroke`s, drawn anti-aliased with
+//!   tiny-skia) as an RGB mip pyramid in world-aligned texels, surrounded by the floor.
+//! - [`Renderer`]: camera image at a pose. A per-pixel table built once in
+//!   [`Renderer::new`] holds, for every pixel, where its viewing ray meets the ground in
+//!   the robot frame (pose-independent for a flat floor and a fixed mount), plus its
+//!   footprint: a mip level and up to [`MAX_PROBES`] probes along the footprint's long axis
+//!   (cheap anisotropic filtering, so that the far, grazing ground does not alias). A frame
+//!   is then one affine transform per probe and a trilinear texture lookup; nothing is
+//!   allocated per frame. Above the horizon (and beyond the camera's ground range) a wall
+//!   colour with a slight vertical gradient.
+//! - [`RenderEffects`] / [`apply_effects`]: blur, brightness, Gaussian sensor noise.
+//! - [`top_down`] and [`write_png`].
+//!
+//! Image buffers are RGB8, row-major, top row first, `width * height * 3` bytes.
+//! Colour values inside the texture code are `f32` on the 0..=255 scale.
+
+use std::path::Path;
+
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+use tiny_skia::{
+    Color, FillRule, IntSize, LineCap, LineJoin, Paint, PathBuilder, Pixmap, Rect, Stroke,
+    StrokeDash, Transform,
+};
+
+use super::camera::CameraModel;
+use super::{PaintStroke, Pose2, SimError};
+
+/// Default texture resolution, texels per metre (2.5 mm texels).
+pub const DEFAULT_PX_PER_M: f32 = 400.0;
+/// Default colour of the bare mat (where no stroke is painted).
+pub const DEFAULT_MAT_RGB: [u8; 3] = [168, 172, 166];
+/// Default colour of the floor around the mat.
+pub const DEFAULT_FLOOR_RGB: [u8; 3] = [142, 112, 84];
+/// Default colour of the walls (seen above the horizon).
+pub const DEFAULT_WALL_RGB: [u8; 3] = [214, 210, 200];
+/// Most texture probes per pixel along the footprint's long axis.
+pub const MAX_PROBES: u32 = 4;
+
+/// Mip levels 0..NUM_LEVELS; level `L` has texels `2^L` times larger than level 0.
+const NUM_LEVELS: usize = 6;
+/// Floor texels kept around the mat at the coarsest level (so clamped lookups read floor).
+const COARSE_BORDER: usize = 2;
+
+/// Packed colour for fast filtering: R, G, B in 21-bit lanes of a `u64` (bits 0, 21, 42).
+/// A bilinear result holds `value * 256` per lane (at most 65 280); sums of a few of them
+/// still fit in a lane.
+type Packed = u64;
+const LANE_BITS: u32 = 21;
+const LANE: u64 = (1 << LANE_BITS) - 1;
+/// 16 low bits of every lane.
+const LANES16: u64 = 0xFFFF | (0xFFFF << LANE_BITS) | (0xFFFF << (2 * LANE_BITS));
+/// Trilinear weights are quantised to 1/32 (a lane of `value * 256 * 32` still fits).
+const TRI_BITS: u32 = 5;
+const TRI_ONE: u32 = 1 << TRI_BITS;
+
+/// RGBA8 (as `[r, g, b, a]` read little-endian) -> packed lanes.
+#[inline(always)]
+fn expand(t: u32) -> Packed {
+    let t = t as u64;
+    (t & 0xFF) | ((t & 0xFF00) << (LANE_BITS - 8)) | ((t & 0xFF_0000) << (2 * LANE_BITS - 16))
+}
+
+#[inline(always)]
+fn lane(p: Packed, k: u32) -> u32 {
+    ((p >> (k * LANE_BITS)) & LANE) as u32
+}
+
+/// One mip level: `w x h` texels `[r, g, b, 255]` stored as little-endian `u32`, row 0
+/// at the lowest world y.
+#[derive(Debug, Clone)]
+struct Level {
+    w: usize,
+    h: usize,
+    /// Texels per metre at this level.
+    scale: f32,
+    /// Largest continuous texel coordinate that keeps a 2x2 neighbourhood inside.
+    max_x: f32,
+    max_y: f32,
+    texels: Vec<u32>,
+}
+
+impl Level {
+    /// Bilinear lookup at continuous texel coordinates (texel `(i, j)` has its centre at
+    /// `(i, j)`), 8-bit weights; `value * 256` per lane. Coordinates are clamped, and the
+    /// border is floor, so outside reads floor.
+    #[inline(always)]
+    fn bilinear(&self, tx: f32, ty: f32) -> Packed {
+        let tx = tx.max(0.0).min(self.max_x);
+        let ty = ty.max(0.0).min(self.max_y);
+        let x0 = tx as usize;
+        let y0 = ty as usize;
+        let wx = ((tx - x0 as f32) * 256.0) as u64;
+        let wy = ((ty - y0 as f32) * 256.0) as u64;
+        let i = y0 * self.w + x0;
+        let (Some(r0), Some(r1)) = (
+            self.texels.get(i..i + 2),
+            self.texels.get(i + self.w..i + self.w + 2),
+        ) else {
+            return 0;
+        };
+        let w11 = (wx * wy) >> 8;
+        let w10 = (wx * (256 - wy)) >> 8;
+        let w01 = ((256 - wx) * wy) >> 8;
+        let w00 = 256 - w11 - w10 - w01;
+        expand(r0[0]) * w00 + expand(r0[1]) * w10 + expand(r1[0]) * w01 + expand(r1[1]) * w11
+    }
+
+    fn texel_rgb(&self, i: usize, j: usize) -> [u8; 3] {
+        let t = self.texels.get(j * self.w + i).copied().unwrap_or(0);
+        [t as u8, (t >> 8) as u8, (t >> 16) as u8]
+    }
+}
+
+/// The painted mat as a world-aligned RGB mip pyramid, with the floor around it.
+#[derive(Debug, Clone)]
+pub struct MatTexture {
+    levels: Vec<Level>,
+    /// World coordinates (metres) of the lower-left corner of texel (0, 0), all levels.
+    origin: (f32, f32),
+    px_per_m: f32,
+    mat_size: (f32, f32),
+    mat_rgb: [u8; 3],
+    floor_rgb: [u8; 3],
+}
+
+fn color(rgb: [u8; 3]) -> Color {
+    Color::from_rgba8(rgb[0], rgb[1], rgb[2], 255)
+}
+
+fn paint_of(rgb: [u8; 3]) -> Paint<'static> {
+    let mut paint = Paint::default();
+    paint.set_color(color(rgb));
+    paint.anti_alias = true;
+    paint
+}
+
+impl MatTexture {
+    /// Paints the mat: the floor colour everywhere, the mat rectangle
+    /// `[0, mat_size.0] x [0, mat_size.1]` (metres) in `mat_rgb`, then `strokes` in order
+    /// (anti-aliased, round caps and joins, dashes in metres), at `px_per_m` texels per
+    /// metre, and builds the mip pyramid.
+    pub fn new(
+        strokes: &[PaintStroke],
+        mat_size: (f32, f32),
+        px_per_m: f32,
+        mat_rgb: [u8; 3],
+        floor_rgb: [u8; 3],
+    ) -> Result<Self, SimError> {
+        let (mw, mh) = mat_size;
+        if !(mw.is_finite() && mh.is_finite() && mw > 0.0 && mh > 0.0 && mw <= 50.0 && mh <= 50.0) {
+            return Err(SimError::Invalid(format!(
+                "mat size {mw} x {mh} m must be positive and at most 50 m"
+            )));
+        }
+        if !(px_per_m.is_finite() && (10.0..=4000.0).contains(&px_per_m)) {
+            return Err(SimError::Invalid(format!(
+                "texture resolution {px_per_m} px/m must be in 10..=4000"
+            )));
+        }
+        let coarse = 1usize << (NUM_LEVELS - 1);
+        let border0 = COARSE_BORDER * coarse; // level-0 texels of floor around the mat
+        let round_up = |n: usize| n.div_ceil(coarse) * coarse;
+        let w0 = round_up((mw * px_per_m).ceil() as usize + 2 * border0);
+        let h0 = round_up((mh * px_per_m).ceil() as usize + 2 * border0);
+        if w0 * h0 > 64 << 20 {
+            return Err(SimError::Invalid(format!(
+                "texture of {w0} x {h0} texels is too large; lower px_per_m"
+            )));
+        }
+        let border_m = border0 as f32 / px_per_m;
+        let origin = (-border_m, -border_m);
+
+        let size = IntSize::from_wh(w0 as u32, h0 as u32)
+            .ok_or_else(|| SimError::Invalid("empty texture".into()))?;
+        let mut pixmap = Pixmap::new(size.width(), size.height())
+            .ok_or_else(|| SimError::Invalid(format!("cannot allocate a {w0} x {h0} pixmap")))?;
+        pixmap.fill(color(floor_rgb));
+        // World (x, y) -> pixmap pixel (x right, y down from the top row).
+        let to_px = |x: f32, y: f32| {
+            (
+                (x - origin.0) * px_per_m,
+                h0 as f32 - (y - origin.1) * px_per_m,
+            )
+        };
+        let (x0, y0) = to_px(0.0, mh);
+        if let Some(rect) = Rect::from_xywh(x0, y0, mw * px_per_m, mh * px_per_m) {
+            pixmap.fill_rect(rect, &paint_of(mat_rgb), Transform::identity(), None);
+        }
+        for stroke in strokes {
+            draw_stroke(&mut pixmap, stroke, px_per_m, &to_px)?;
+        }
+
+        // Pixmap (premultiplied, opaque) -> level 0 with row 0 at the lowest y.
+        let data = pixmap.data();
+        let mut texels = vec![0u32; w0 * h0];
+        for (j, row) in texels.chunks_exact_mut(w0).enumerate() {
+            let src_row = h0 - 1 - j;
+            let src = &data[src_row * w0 * 4..(src_row + 1) * w0 * 4];
+            for (t, s) in row.iter_mut().zip(src.chunks_exact(4)) {
+                *t = u32::from_le_bytes([s[0], s[1], s[2], 255]);
+            }
+        }
+        let mut levels = vec![make_level(w0, h0, px_per_m, texels)];
+        for _ in 1..NUM_LEVELS {
+            let Some(prev) = levels.last() else { break };
+            let (w, h) = (prev.w / 2, prev.h / 2);
+            let mut texels = vec![0u32; w * h];
+            for j in 0..h {
+                for i in 0..w {
+                    let sum = expand(prev.texels[(2 * j) * prev.w + 2 * i])
+                        + expand(prev.texels[(2 * j) * prev.w + 2 * i + 1])
+                        + expand(prev.texels[(2 * j + 1) * prev.w + 2 * i])
+                        + expand(prev.texels[(2 * j + 1) * prev.w + 2 * i + 1]);
+                    let avg = |k| ((lane(sum, k) + 2) / 4) as u8;
+                    texels[j * w + i] = u32::from_le_bytes([avg(0), avg(1), avg(2), 255]);
+                }
+            }
+            let scale = prev.scale / 2.0;
+            levels.push(make_level(w, h, scale, texels));
+        }
+        Ok(Self {
+            levels,
+            origin,
+            px_per_m,
+            mat_size,
+            mat_rgb,
+            floor_rgb,
+        })
+    }
+
+    /// [`Self::new`] with the default resolution and colours.
+    pub fn with_defaults(strokes: &[PaintStroke], mat_size: (f32, f32)) -> Result<Self, SimError> {
+        Self::new(
+            strokes,
+            mat_size,
+            DEFAULT_PX_PER_M,
+            DEFAULT_MAT_RGB,
+            DEFAULT_FLOOR_RGB,
+        )
+    }
+
+    /// Bilinear colour (0..=255 per channel) at world point `(x, y)` metres, from the
+    /// full-resolution level. Outside the mat: the floor colour.
+    pub fn sample(&self, x: f32, y: f32) -> [f32; 3] {
+        let l = &self.levels[0];
+        let p = l.bilinear(
+            (x - self.origin.0) * l.scale - 0.5,
+            (y - self.origin.1) * l.scale - 0.5,
+        );
+        [0, 1, 2].map(|k| lane(p, k) as f32 / 256.0)
+    }
+
+    /// Texels per metre of the full-resolution level.
+    pub fn px_per_m(&self) -> f32 {
+        self.px_per_m
+    }
+
+    /// Mat size in metres `(x extent, y extent)`.
+    pub fn mat_size(&self) -> (f32, f32) {
+        self.mat_size
+    }
+
+    /// Colour of the bare mat.
+    pub fn mat_rgb(&self) -> [u8; 3] {
+        self.mat_rgb
+    }
+
+    /// Colour of the floor around the mat.
+    pub fn floor_rgb(&self) -> [u8; 3] {
+        self.floor_rgb
+    }
+}
+
+fn make_level(w: usize, h: usize, scale: f32, texels: Vec<u32>) -> Level {
+    Level {
+        w,
+        h,
+        scale,
+        max_x: (w.saturating_sub(2)) as f32 + 0.999,
+        max_y: (h.saturating_sub(2)) as f32 + 0.999,
+        texels,
+    }
+}
+
+fn draw_stroke(
+    pixmap: &mut Pixmap,
+    stroke: &PaintStroke,
+    px_per_m: f32,
+    to_px: &dyn Fn(f32, f32) -> (f32, f32),
+) -> Result<(), SimError> {
+    if stroke.points.is_empty() || !(stroke.width_m.is_finite() && stroke.width_m > 0.0) {
+        return Err(SimError::Invalid(format!(
+            "paint stroke needs points and a positive width (width {} m, {} points)",
+            stroke.width_m,
+            stroke.points.len()
+        )));
+    }
+    let mut pb = PathBuilder::new();
+    for (k, &(x, y)) in stroke.points.iter().enumerate() {
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(SimError::Invalid(format!(
+                "paint stroke point ({x}, {y}) is not finite"
+            )));
+        }
+        let (px, py) = to_px(x, y);
+        if k == 0 {
+            pb.move_to(px, py);
+        } else {
+            pb.line_to(px, py);
+        }
+    }
+    if stroke.points.len() == 1 {
+        // A dot: a zero-length segment with round caps.
+        let (px, py) = to_px(stroke.points[0].0, stroke.points[0].1);
+        pb.line_to(px + 1e-3, py);
+    }
+    if stroke.closed {
+        pb.close();
+    }
+    let Some(path) = pb.finish() else {
+        return Ok(());
+    };
+    let width_px = stroke.width_m * px_per_m;
+    let dash = match stroke.dash {
+        Some((on, off)) => {
+            if !(on.is_finite() && off.is_finite() && on > 0.0 && off > 0.0) {
+                return Err(SimError::Invalid(format!(
+                    "dash ({on}, {off}) m must be positive"
+                )));
+            }
+            // Round caps lengthen each dash by the line width: shorten the dash and shift
+            // the pattern so that each painted dash, caps included, spans its stated
+            // length from the start of the pattern.
+            let (on, off) = (on * px_per_m, off * px_per_m);
+            let core = (on - width_px).max(0.05 * on);
+            StrokeDash::new(vec![core, off + on - core], -(on - core) / 2.0)
+        }
+        None => None,
+    };
+    let sk = Stroke {
+        width: width_px,
+        line_cap: LineCap::Round,
+        line_join: LineJoin::Round,
+        dash,
+        ..Stroke::default()
+    };
+    pixmap.stroke_path(
+        &path,
+        &paint_of(stroke.rgb),
+        &sk,
+        Transform::identity(),
+        None,
+    );
+    Ok(())
+}
+
+/// Photometric effects applied to a rendered (or synthesised) frame, in this order:
+/// blur (optics), brightness (exposure), noise (sensor).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderEffects {
+    /// Multiplies every channel (1.0: unchanged).
+    pub brightness: f32,
+    /// Standard deviation of additive Gaussian noise, in 8-bit levels (0: none).
+    pub noise_std: f32,
+    /// A 3x3 binomial ([1 2 1] x [1 2 1] / 16) blur.
+    pub blur: bool,
+}
+
+impl Default for RenderEffects {
+    fn default() -> Self {
+        Self {
+            brightness: 1.0,
+            noise_std: 0.0,
+            blur: false,
+        }
+    }
+}
+
+impl RenderEffects {
+    /// True when applying these effects leaves a frame unchanged.
+    pub fn is_identity(&self) -> bool {
+        self.brightness == 1.0 && self.noise_std <= 0.0 && !self.blur
+    }
+}
+
+/// Applies `effects` in place to an RGB8 `width x height` frame, drawing noise from `rng`
+/// (seed it for reproducible frames). Allocates nothing.
+///
+/// Panics if `rgb.len() != width * height * 3`.
+pub fn apply_effects<R: Rng + ?Sized>(
+    width: u32,
+    height: u32,
+    effects: &RenderEffects,
+    rng: &mut R,
+    rgb: &mut [u8],
+) {
+    let (w, h) = (width as usize, height as usize);
+    assert_eq!(
+        rgb.len(),
+        w * h * 3,
+        "frame buffer must be width * height * 3 bytes"
+    );
+    if effects.blur && w >= 2 && h >= 2 {
+        blur_121(w, h, rgb);
+    }
+    let gain = if effects.brightness.is_finite() {
+        effects.brightness.max(0.0)
+    } else {
+        1.0
+    };
+    let noise = if effects.noise_std.is_finite() && effects.noise_std > 0.0 {
+        Normal::new(0.0f32, effects.noise_std).ok()
+    } else {
+        None
+    };
+    match noise {
+        Some(normal) => {
+            for p in rgb.iter_mut() {
+                let val = *p as f32 * gain + normal.sample(rng);
+                *p = val.round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        None if gain != 1.0 => {
+            for p in rgb.iter_mut() {
+                *p = (*p as f32 * gain).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        None => {}
+    }
+}
+
+/// Separable [1 2 1] / 4 blur in place (edges replicated), with scalar carries only.
+fn blur_121(w: usize, h: usize, rgb: &mut [u8]) {
+    // Horizontal.
+    for row in rgb.chunks_exact_mut(w * 3) {
+        for c in 0..3 {
+            let mut prev = row[c] as u16;
+            for i in 0..w {
+                let cur = row[i * 3 + c] as u16;
+                let next = if i + 1 < w {
+                    row[(i + 1) * 3 + c] as u16
+                } else {
+                    cur
+                };
+                row[i * 3 + c] = ((prev + 2 * cur + next + 2) / 4) as u8;
+                prev = cur;
+            }
+        }
+    }
+    // Vertical.
+    let stride = w * 3;
+    for col in 0..stride {
+        let mut prev = rgb[col] as u16;
+        for j in 0..h {
+            let cur = rgb[j * stride + col] as u16;
+            let next = if j + 1 < h {
+                rgb[(j + 1) * stride + col] as u16
+            } else {
+                cur
+            };
+            rgb[j * stride + col] = ((prev + 2 * cur + next + 2) / 4) as u8;
+            prev = cur;
+        }
+    }
+}
+
+/// Where one pixel looks, in the robot frame (pose-independent), built once.
+#[derive(Debug, Clone, Copy, Default)]
+struct PixelRay {
+    /// First probe's ground point, metres ahead of / left of the axle centre.
+    fwd: f32,
+    left: f32,
+    /// Robot-frame step between consecutive probes (metres).
+    step_fwd: f32,
+    step_left: f32,
+    /// Weight of mip level `level + 1` (trilinear), in 1/32; 0: `level` only.
+    tri: u8,
+    level: u8,
+    /// Number of probes; 0: no ground here (wall).
+    probes: u8,
+}
+
+/// Renders the camera view of a [`MatTexture`] at any pose.
+#[derive(Debug, Clone)]
+pub struct Renderer {
+    texture: MatTexture,
+    camera: CameraModel,
+    /// One entry per pixel, row-major.
+    rays: Vec<PixelRay>,
+    /// Wall colour per image row.
+    wall_rows: Vec<[u8; 3]>,
+}
+
+/// The ground footprint of one pixel: the difference between the ground points of the
+/// pixel's two opposite edges along `u` and along `v`, robot frame.
+fn footprint(camera: &CameraModel, u: f32, v: f32, g: (f32, f32)) -> Option<[(f32, f32); 2]> {
+    let diff = |a: Option<(f32, f32)>, b: Option<(f32, f32)>| match (a, b) {
+        (Some(a), Some(b)) => Some((b.0 - a.0, b.1 - a.1)),
+        (None, Some(b)) => Some((2.0 * (b.0 - g.0), 2.0 * (b.1 - g.1))),
+        (Some(a), None) => Some((2.0 * (g.0 - a.0), 2.0 * (g.1 - a.1))),
+        (None, None) => None,
+    };
+    let du = diff(
+        camera.pixel_to_robot_ground(u - 0.5, v),
+        camera.pixel_to_robot_ground(u + 0.5, v),
+    )?;
+    let dv = diff(
+        camera.pixel_to_robot_ground(u, v - 0.5),
+        camera.pixel_to_robot_ground(u, v + 0.5),
+    )?;
+    Some([du, dv])
+}
+
+impl Renderer {
+    /// Builds the per-pixel ray table for `camera` (validated) over `texture`.
+    pub fn new(texture: MatTexture, camera: CameraModel) -> Result<Self, SimError> {
+        camera.validate()?;
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let max_level = (NUM_LEVELS - 1) as f32;
+        let ppm = texture.px_per_m;
+        let mut rays = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
+                let Some(g) = camera.pixel_to_robot_ground(u, v) else {
+                    rays.push(PixelRay::default());
+                    continue;
+                };
+                let Some([du, dv]) = footprint(&camera, u, v, g) else {
+                    rays.push(PixelRay {
+                        fwd: g.0,
+                        left: g.1,
+                        level: (NUM_LEVELS - 1) as u8,
+                        probes: 1,
+                        ..PixelRay::default()
+                    });
+                    continue;
+                };
+                let len_u = du.0.hypot(du.1);
+                let len_v = dv.0.hypot(dv.1);
+                let (major, major_len) = if len_v >= len_u {
+                    (dv, len_v)
+                } else {
+                    (du, len_u)
+                };
+                let area = (du.0 * dv.1 - du.1 * dv.0).abs();
+                let minor_len = (area / major_len.max(1e-12)).max(1e-9);
+                let probes = ((major_len / minor_len).ceil() as u32).clamp(1, MAX_PROBES);
+                let size = minor_len.max(major_len / probes as f32);
+                let lod = (size * ppm).log2().clamp(0.0, max_level);
+                let level = (lod.floor() as usize).min(NUM_LEVELS - 1);
+                let frac = if level + 1 < NUM_LEVELS {
+                    lod - level as f32
+                } else {
+                    0.0
+                };
+                let n = probes as f32;
+                let step = (major.0 / n, major.1 / n);
+                let start = (n - 1.0) / 2.0;
+                rays.push(PixelRay {
+                    fwd: g.0 - start * step.0,
+                    left: g.1 - start * step.1,
+                    step_fwd: step.0,
+                    step_left: step.1,
+                    tri: (frac * TRI_ONE as f32).round() as u8,
+                    level: level as u8,
+                    probes: probes as u8,
+                });
+            }
+        }
+        let mut renderer = Self {
+            texture,
+            camera,
+            rays,
+            wall_rows: Vec::new(),
+        };
+        renderer.set_wall_rgb(DEFAULT_WALL_RGB);
+        Ok(renderer)
+    }
+
+    /// Sets the wall colour (seen above the horizon): `rgb` at the horizon, brightening
+    /// slightly (up to about 10 %) towards the top of the image.
+    pub fn set_wall_rgb(&mut self, rgb: [u8; 3]) {
+        let h = self.camera.height as usize;
+        let horizon = self.camera.horizon_v().max(1.0);
+        self.wall_rows = (0..h)
+            .map(|j| {
+                let v = j as f32 + 0.5;
+                let up = (1.0 - v / horizon).clamp(0.0, 1.0);
+                let gain = 0.95 + 0.15 * up;
+                rgb.map(|c| (c as f32 * gain).round().clamp(0.0, 255.0) as u8)
+            })
+            .collect();
+    }
+
+    /// The texture this renderer draws.
+    pub fn texture(&self) -> &MatTexture {
+        &self.texture
+    }
+
+    /// The camera this renderer draws for.
+    pub fn camera(&self) -> &CameraModel {
+        &self.camera
+    }
+
+    /// Bytes in one frame: `width * height * 3`.
+    pub fn frame_len(&self) -> usize {
+        self.camera.width as usize * self.camera.height as usize * 3
+    }
+
+    /// Renders the camera view from a robot at `pose` into `out` (RGB8, row-major, top row
+    /// first). Allocates nothing.
+    ///
+    /// Panics if `out.len() != width * height * 3`.
+    pub fn render(&self, pose: &Pose2, out: &mut [u8]) {
+        assert_eq!(
+            out.len(),
+            self.frame_len(),
+            "frame buffer must be width * height * 3 bytes"
+        );
+        let w = self.camera.width as usize;
+        let tex = &self.texture;
+        let (s, c) = pose.heading.sin_cos();
+        // Robot frame (fwd, left) -> level-0 texel-edge coordinates
+        // (X, Y) = ((x - ox) * ppm, (y - oy) * ppm).
+        let k0 = tex.px_per_m;
+        let (axf, axl, ax0) = (c * k0, -s * k0, (pose.x - tex.origin.0) * k0);
+        let (ayf, ayl, ay0) = (s * k0, c * k0, (pose.y - tex.origin.1) * k0);
+        let levels = &tex.levels;
+        let inv_scale: [f32; NUM_LEVELS] = std::array::from_fn(|l| 1.0 / (1u32 << l) as f32);
+
+        for ((rays, row), wall) in self
+            .rays
+            .chunks_exact(w)
+            .zip(out.chunks_exact_mut(w * 3))
+            .zip(self.wall_rows.iter())
+        {
+            for (ray, px) in rays.iter().zip(row.chunks_exact_mut(3)) {
+                if ray.probes == 0 {
+                    px.copy_from_slice(wall);
+                    continue;
+                }
+                let l0 = ray.level as usize;
+                let tri = ray.tri as u64;
+                let (Some(lev0), Some(lev1)) =
+                    (levels.get(l0), levels.get((l0 + 1).min(NUM_LEVELS - 1)))
+                else {
+                    px.copy_from_slice(wall);
+                    continue;
+                };
+                let (i0, i1) = (inv_scale[l0], inv_scale[(l0 + 1).min(NUM_LEVELS - 1)]);
+                let mut acc: Packed = 0;
+                let (mut f, mut l) = (ray.fwd, ray.left);
+                for _ in 0..ray.probes {
+                    let x = axf * f + axl * l + ax0;
+                    let y = ayf * f + ayl * l + ay0;
+                    acc += if tri == 0 {
+                        lev0.bilinear(x * i0 - 0.5, y * i0 - 0.5)
+                    } else if tri == TRI_ONE as u64 {
+                        lev1.bilinear(x * i1 - 0.5, y * i1 - 0.5)
+                    } else {
+                        let a = lev0.bilinear(x * i0 - 0.5, y * i0 - 0.5);
+                        let b = lev1.bilinear(x * i1 - 0.5, y * i1 - 0.5);
+                        ((a * (TRI_ONE as u64 - tri) + b * tri) >> TRI_BITS) & LANES16
+                    };
+                    f += ray.step_fwd;
+                    l += ray.step_left;
+                }
+                let norm = 1.0 / (256.0 * ray.probes as f32);
+                for k in 0..3 {
+                    px[k as usize] = (lane(acc, k) as f32 * norm + 0.5) as u8;
+                }
+            }
+        }
+    }
+
+    /// [`Self::render`] followed by [`apply_effects`].
+    pub fn render_with_effects<R: Rng + ?Sized>(
+        &self,
+        pose: &Pose2,
+        effects: &RenderEffects,
+        rng: &mut R,
+        out: &mut [u8],
+    ) {
+        self.render(pose, out);
+        apply_effects(self.camera.width, self.camera.height, effects, rng, out);
+    }
+}
+
+/// Colour of the driven trace in [`top_down`].
+pub const TRACE_RGB: [u8; 3] = [30, 90, 230];
+/// Extra floor shown around the mat in [`top_down`], metres.
+const TOP_DOWN_MARGIN_M: f32 = 0.05;
+
+/// The mat seen from above (about 200 px/m, north up: world +y at the top), with `trace`
+/// (the driven path) as a blue polyline, a green dot at its start, and `marks` (e.g.
+/// interventions, in red) as dots with a heading tick. Returns `(width, height, rgb)`,
+/// RGB8 row-major, top row first, for [`write_png`].
+pub fn top_down(
+    texture: &MatTexture,
+    trace: &[Pose2],
+    marks: &[(Pose2, [u8; 3])],
+) -> (u32, u32, Vec<u8>) {
+    // The level closest to 200 px/m.
+    let level_index = (0..texture.levels.len())
+        .min_by(|&a, &b| {
+            let da = (texture.levels[a].scale / 200.0).log2().abs();
+            let db = (texture.levels[b].scale / 200.0).log2().abs();
+            da.total_cmp(&db)
+        })
+        .unwrap_or(0);
+    let lev = &texture.levels[level_index];
+    let k = lev.scale;
+    let (mw, mh) = texture.mat_size;
+    // Texel window: the mat plus a margin, clamped to the level.
+    let i0 = (((-TOP_DOWN_MARGIN_M - texture.origin.0) * k)
+        .floor()
+        .max(0.0)) as usize;
+    let j0 = (((-TOP_DOWN_MARGIN_M - texture.origin.1) * k)
+        .floor()
+        .max(0.0)) as usize;
+    let i1 = ((((mw + TOP_DOWN_MARGIN_M - texture.origin.0) * k).ceil()) as usize).min(lev.w);
+    let j1 = ((((mh + TOP_DOWN_MARGIN_M - texture.origin.1) * k).ceil()) as usize).min(lev.h);
+    let (w, h) = (i1.saturating_sub(i0).max(1), j1.saturating_sub(j0).max(1));
+    let mut rgba = Vec::with_capacity(w * h * 4);
+    for r in 0..h {
+        let j = j1.saturating_sub(1 + r); // top image row = highest y
+        for i in i0..i0 + w {
+            let [r, g, b] = lev.texel_rgb(i, j);
+            rgba.extend_from_slice(&[r, g, b, 255]);
+        }
+    }
+    // World -> image pixel.
+    let wx0 = texture.origin.0 + i0 as f32 / k;
+    let wy1 = texture.origin.1 + j1 as f32 / k;
+    let to_px = |x: f32, y: f32| ((x - wx0) * k, (wy1 - y) * k);
+
+    let Some(mut pixmap) = IntSize::from_wh(w as u32, h as u32).and_then(|size| {
+        // Opaque, so premultiplied == straight RGBA.
+        Pixmap::from_vec(rgba, size)
+    }) else {
+        return (w as u32, h as u32, vec![0; w * h * 3]);
+    };
+    let line = Stroke {
+        width: 2.5,
+        line_cap: LineCap::Round,
+        line_join: LineJoin::Round,
+        ..Stroke::default()
+    };
+    let finite: Vec<&Pose2> = trace
+        .iter()
+        .filter(|p| p.x.is_finite() && p.y.is_finite())
+        .collect();
+    if finite.len() >= 2 {
+        let mut pb = PathBuilder::new();
+        for (n, p) in finite.iter().enumerate() {
+            let (x, y) = to_px(p.x, p.y);
+            if n == 0 {
+                pb.move_to(x, y);
+            } else {
+                pb.line_to(x, y);
+            }
+        }
+        if let Some(path) = pb.finish() {
+            pixmap.stroke_path(
+                &path,
+                &paint_of(TRACE_RGB),
+                &line,
+                Transform::identity(),
+                None,
+            );
+        }
+    }
+    if let Some(p) = finite.first() {
+        let (x, y) = to_px(p.x, p.y);
+        if let Some(dot) = PathBuilder::from_circle(x, y, 5.0) {
+            pixmap.fill_path(
+                &dot,
+                &paint_of([40, 190, 60]),
+                FillRule::Winding,
+                Transform::identity(),
+                None,
+            );
+        }
+    }
+    let outline = Stroke {
+        width: 1.5,
+        ..Stroke::default()
+    };
+    let tick = Stroke {
+        width: 2.0,
+        line_cap: LineCap::Round,
+        ..Stroke::default()
+    };
+    for (pose, rgb) in marks {
+        if !(pose.x.is_finite() && pose.y.is_finite() && pose.heading.is_finite()) {
+            continue;
+        }
+        let (x, y) = to_px(pose.x, pose.y);
+        if let Some(dot) = PathBuilder::from_circle(x, y, 6.0) {
+            pixmap.fill_path(
+                &dot,
+                &paint_of(*rgb),
+                FillRule::Winding,
+                Transform::identity(),
+                None,
+            );
+            pixmap.stroke_path(
+                &dot,
+                &paint_of([20, 20, 20]),
+                &outline,
+                Transform::identity(),
+                None,
+            );
+        }
+        let (s, c) = pose.heading.sin_cos();
+        let mut pb = PathBuilder::new();
+        pb.move_to(x, y);
+        pb.line_to(x + 14.0 * c, y - 14.0 * s);
+        if let Some(path) = pb.finish() {
+            pixmap.stroke_path(&path, &paint_of(*rgb), &tick, Transform::identity(), None);
+        }
+    }
+    (w as u32, h as u32, rgba_to_rgb(pixmap.data()))
+}
+
+fn rgba_to_rgb(rgba: &[u8]) -> Vec<u8> {
+    rgba.chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect()
+}
+
+/// Writes an RGB8 image (`w * h * 3` bytes, top row first) as a PNG file.
+pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<(), SimError> {
+    let file_err = |reason: String| SimError::File {
+        path: path.display().to_string(),
+        reason,
+    };
+    if rgb.len() != w as usize * h as usize * 3 {
+        return Err(file_err(format!(
+            "image buffer has {} bytes, expected {} for {w} x {h} RGB",
+            rgb.len(),
+            w as usize * h as usize * 3
+        )));
+    }
+    image::save_buffer_with_format(
+        path,
+        rgb,
+        w,
+        h,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| file_err(e.to_string()))
+}

@@ -1,1 +1,717 @@
-//! (in progress)
+//! Replayed-frame synthesis, the heart of the simulator: a new camera view at a simulated
+//! pose made from a recorded frame, as VISTA and DAVE-2 do.
+//!
+//! A [`Recording`] is frames plus the pose each was taken at (from the renderer, or real
+//! data with poses). For a simulated pose the [`Synthesizer`] picks the nearest recorded
+//! frame along the path (position plus a heading term) and re-projects it through the
+//! ground plane:
+//!
+//! ```text
+//! output pixel --(per-pixel table, built once)--> ground point in the robot frame (m)
+//!   --(new pose)--> world ground point --(recorded pose's homography)--> recorded pixel
+//!   --> bilinear sample of the recorded frame
+//! ```
+//!
+//! Output pixels with no ground (above the horizon, or beyond the camera's ground range)
+//! copy the recorded pixel at the same `(u, v)`: walls far away barely move. Ground points
+//! that fall outside the recorded frame are clamped to its nearest edge pixel and count
+//! against [`SynthInfo::coverage`]. Synthesis is faithful only near the recording, so
+//! [`SynthInfo::valid`] turns false beyond half a road width or 18 degrees of heading error
+//! (VISTA's episode-end rule).
+//!
+//! Frames are RGB8, row-major, top row first, `width * height * 3` bytes; pixel
+//! conventions are those of [`crate::sim::camera`].
+
+use std::sync::Arc;
+
+use nalgebra::Matrix3;
+
+use super::camera::CameraModel;
+use super::{Pose2, SimError, wrap_angle};
+
+/// Largest heading error (radians) at which a synthesised view counts as valid: 18 degrees.
+pub const MAX_HEADING_ERROR_RAD: f32 = 18.0 * std::f32::consts::PI / 180.0;
+
+/// Weight of the heading difference in [`Synthesizer::nearest`], metres: a frame facing
+/// the other way costs as much as one `2 * HEADING_WEIGHT_M` farther away, a frame
+/// 18 degrees off about as much as one 6 cm farther away.
+pub const HEADING_WEIGHT_M: f32 = 0.2;
+
+/// One recorded camera frame and the robot pose it was taken at.
+#[derive(Debug, Clone)]
+pub struct RecordedFrame {
+    pub pose: Pose2,
+    pub width: u32,
+    pub height: u32,
+    /// RGB8, row-major, top row first, `width * height * 3` bytes.
+    pub rgb: Arc<Vec<u8>>,
+}
+
+/// Frames recorded by one camera along a path.
+#[derive(Debug, Clone)]
+pub struct Recording {
+    pub camera: CameraModel,
+    pub frames: Vec<RecordedFrame>,
+}
+
+/// What [`Synthesizer::synthesize`] did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SynthInfo {
+    /// Index of the recorded frame used.
+    pub index: usize,
+    /// Offset of the new pose from the recorded pose, perpendicular to the recorded
+    /// heading, metres, positive to the left.
+    pub lateral_m: f32,
+    /// `wrap(pose.heading - recorded.heading)`, radians.
+    pub heading_error: f32,
+    /// `|lateral_m| <= half road width` and `|heading_error| <= 18 degrees`.
+    pub valid: bool,
+    /// Fraction of the output's ground pixels whose source lies inside the recorded frame
+    /// (1.0 when the output shows no ground).
+    pub coverage: f32,
+}
+
+/// Re-projects recorded frames to new poses.
+#[derive(Debug, Clone)]
+pub struct Synthesizer {
+    recording: Recording,
+    half_road_width_m: f32,
+    /// Per output pixel, row-major: the ground point `[forward, left]` (metres, robot
+    /// frame) it sees, or `None` for no ground (above the horizon or too far).
+    ground: Vec<Option<[f32; 2]>>,
+    /// Number of `Some` entries in `ground`.
+    ground_pixels: usize,
+    /// Per recorded frame: its ground homography (world ground -> recorded pixel).
+    homographies: Vec<Matrix3<f32>>,
+}
+
+impl Synthesizer {
+    /// Checks the recording (not empty, every frame the camera's size with a buffer of
+    /// `width * height * 3` bytes, finite poses) and builds the per-pixel ground table.
+    pub fn new(recording: Recording, half_road_width_m: f32) -> Result<Self, SimError> {
+        let camera = recording.camera;
+        camera.validate()?;
+        if !(half_road_width_m.is_finite() && half_road_width_m > 0.0) {
+            return Err(SimError::Invalid(format!(
+                "half road width {half_road_width_m} m must be positive"
+            )));
+        }
+        if recording.frames.is_empty() {
+            return Err(SimError::Invalid("recording has no frames".into()));
+        }
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        for (i, f) in recording.frames.iter().enumerate() {
+            if f.width != camera.width || f.height != camera.height {
+                return Err(SimError::Invalid(format!(
+                    "recorded frame {i} is {}x{}, the camera is {}x{}",
+                    f.width, f.height, camera.width, camera.height
+                )));
+            }
+            if f.rgb.len() != w * h * 3 {
+                return Err(SimError::Invalid(format!(
+                    "recorded frame {i} has {} bytes, expected {} (RGB8)",
+                    f.rgb.len(),
+                    w * h * 3
+                )));
+            }
+            let p = f.pose;
+            if !(p.x.is_finite() && p.y.is_finite() && p.heading.is_finite()) {
+                return Err(SimError::Invalid(format!(
+                    "recorded frame {i} has a non-finite pose {p:?}"
+                )));
+            }
+        }
+        let mut ground = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let g = camera.pixel_to_robot_ground(i as f32 + 0.5, j as f32 + 0.5);
+                ground.push(g.map(|(f, l)| [f, l]));
+            }
+        }
+        let ground_pixels = ground.iter().filter(|g| g.is_some()).count();
+        let homographies = recording
+            .frames
+            .iter()
+            .map(|f| camera.ground_homography(&f.pose))
+            .collect();
+        Ok(Self {
+            recording,
+            half_road_width_m,
+            ground,
+            ground_pixels,
+            homographies,
+        })
+    }
+
+    /// The recording frames are synthesised from.
+    pub fn recording(&self) -> &Recording {
+        &self.recording
+    }
+
+    /// The camera of the recording (and of the synthesised frames).
+    pub fn camera(&self) -> &CameraModel {
+        &self.recording.camera
+    }
+
+    /// Half the road width used for [`SynthInfo::valid`], metres.
+    pub fn half_road_width_m(&self) -> f32 {
+        self.half_road_width_m
+    }
+
+    /// Bytes in one frame: `width * height * 3`.
+    pub fn frame_len(&self) -> usize {
+        let c = &self.recording.camera;
+        c.width as usize * c.height as usize * 3
+    }
+
+    /// Index of the recorded frame nearest to `pose`: smallest
+    /// `distance^2 + (HEADING_WEIGHT_M * 2 sin(dheading / 2))^2`, so among frames at about
+    /// the same place the one facing the same way wins. Linear scan.
+    pub fn nearest(&self, pose: &Pose2) -> usize {
+        let mut best = (f32::INFINITY, 0usize);
+        for (i, f) in self.recording.frames.iter().enumerate() {
+            let (dx, dy) = (pose.x - f.pose.x, pose.y - f.pose.y);
+            let chord = 2.0 * (0.5 * (pose.heading - f.pose.heading)).sin();
+            let hw = HEADING_WEIGHT_M * chord;
+            let cost = dx * dx + dy * dy + hw * hw;
+            if cost < best.0 {
+                best = (cost, i);
+            }
+        }
+        best.1
+    }
+
+    /// Offsets of `pose` from recorded frame `index`: `(lateral_m, heading_error, valid)`.
+    fn offsets(&self, index: usize, pose: &Pose2) -> (f32, f32, bool) {
+        let rec = self.recording.frames[index].pose;
+        let (s, c) = rec.heading.sin_cos();
+        let lateral = -s * (pose.x - rec.x) + c * (pose.y - rec.y);
+        let heading_error = wrap_angle(pose.heading - rec.heading);
+        let valid =
+            lateral.abs() <= self.half_road_width_m && heading_error.abs() <= MAX_HEADING_ERROR_RAD;
+        (lateral, heading_error, valid)
+    }
+
+    /// Synthesises the view from `pose` out of the nearest recorded frame into `out`
+    /// (RGB8). Allocates nothing.
+    ///
+    /// Panics if `out.len() != width * height * 3`.
+    pub fn synthesize(&self, pose: &Pose2, out: &mut [u8]) -> SynthInfo {
+        let index = self.nearest(pose);
+        self.synthesize_from(index, pose, out)
+    }
+
+    /// Synthesises the view from `pose` out of recorded frame `index` (clamped to the
+    /// recording) into `out` (RGB8). Allocates nothing.
+    ///
+    /// Panics if `out.len() != width * height * 3`.
+    pub fn synthesize_from(&self, index: usize, pose: &Pose2, out: &mut [u8]) -> SynthInfo {
+        assert_eq!(
+            out.len(),
+            self.frame_len(),
+            "frame buffer must be width * height * 3 bytes"
+        );
+        let index = index.min(self.recording.frames.len() - 1);
+        let frame = &self.recording.frames[index];
+        let src: &[u8] = &frame.rgb;
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        let (wf, hf) = (w as f32, h as f32);
+
+        // Robot frame of the new pose (forward, left, 1) -> world (x, y, 1) -> recorded
+        // pixel (u w, v w, w).
+        let (s, c) = pose.heading.sin_cos();
+        let to_world = Matrix3::new(c, -s, pose.x, s, c, pose.y, 0.0, 0.0, 1.0);
+        let m = self.homographies[index] * to_world;
+        let (m00, m01, m02) = (m[(0, 0)], m[(0, 1)], m[(0, 2)]);
+        let (m10, m11, m12) = (m[(1, 0)], m[(1, 1)], m[(1, 2)]);
+        let (m20, m21, m22) = (m[(2, 0)], m[(2, 1)], m[(2, 2)]);
+        let max_x = (w.saturating_sub(2)) as f32 + 0.999;
+        let max_y = (h.saturating_sub(2)) as f32 + 0.999;
+
+        let mut inside = 0usize;
+        for (k, (g, px)) in self.ground.iter().zip(out.chunks_exact_mut(3)).enumerate() {
+            let Some([f, l]) = *g else {
+                px.copy_from_slice(&src[k * 3..k * 3 + 3]);
+                continue;
+            };
+            let pw = m20 * f + m21 * l + m22;
+            let pu = m00 * f + m01 * l + m02;
+            let pv = m10 * f + m11 * l + m12;
+            let (u, v) = if pw > 1e-6 {
+                let inv = 1.0 / pw;
+                (pu * inv, pv * inv)
+            } else {
+                // Behind the recorded camera: it passed over this ground already; the
+                // nearest it saw is the bottom edge, on the same side.
+                (if pu >= 0.0 { wf } else { 0.0 }, hf)
+            };
+            if pw > 1e-6 && u >= 0.0 && u <= wf && v >= 0.0 && v <= hf {
+                inside += 1;
+            }
+            // Bilinear, pixel centres at integer + 0.5; clamped to the frame.
+            let tx = (u - 0.5).max(0.0).min(max_x);
+            let ty = (v - 0.5).max(0.0).min(max_y);
+            let (x0, y0) = (tx as usize, ty as usize);
+            let (fx, fy) = (tx - x0 as f32, ty - y0 as f32);
+            let i00 = (y0 * w + x0) * 3;
+            let i10 = i00 + w * 3;
+            let (Some(r0), Some(r1)) = (src.get(i00..i00 + 6), src.get(i10..i10 + 6)) else {
+                px.fill(0);
+                continue;
+            };
+            for ch in 0..3 {
+                let a = r0[ch] as f32;
+                let b = r0[3 + ch] as f32;
+                let d = r1[ch] as f32;
+                let e = r1[3 + ch] as f32;
+                let top = a + (b - a) * fx;
+                let bot = d + (e - d) * fx;
+                px[ch] = (top + (bot - top) * fy + 0.5) as u8;
+            }
+        }
+        let coverage = if self.ground_pixels == 0 {
+            1.0
+        } else {
+            inside as f32 / self.ground_pixels as f32
+        };
+        let (lateral_m, heading_error, valid) = self.offsets(index, pose);
+        SynthInfo {
+            index,
+            lateral_m,
+            heading_error,
+            valid,
+            coverage,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::PaintStroke;
+    use crate::sim::render::{MatTexture, Renderer, top_down, write_png};
+    use std::f32::consts::{FRAC_PI_2, PI};
+
+    const MAT: (f32, f32) = (1.83, 2.74);
+
+    /// A test road: straight up the mat at x = 0.9 from y = 0.2 to 1.4, then a left
+    /// quarter turn of radius 0.5 m: grey surface, yellow edges, dashed white centre.
+    fn road_strokes() -> Vec<PaintStroke> {
+        let mut centre = Vec::new();
+        for k in 0..=24 {
+            centre.push((0.9, 0.2 + 1.2 * k as f32 / 24.0));
+        }
+        for k in 1..=30 {
+            let a = FRAC_PI_2 * k as f32 / 30.0;
+            // Circle centred at (0.4, 1.4), from angle 0 (the point (0.9, 1.4)) CCW.
+            centre.push((0.4 + 0.5 * a.cos(), 1.4 + 0.5 * a.sin()));
+        }
+        let offset = |d: f32| -> Vec<(f32, f32)> {
+            // Offset to the left of the direction of travel by d.
+            let n = centre.len();
+            (0..n)
+                .map(|i| {
+                    let (a, b) = (centre[i.saturating_sub(1)], centre[(i + 1).min(n - 1)]);
+                    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+                    let len = dx.hypot(dy);
+                    (centre[i].0 - d * dy / len, centre[i].1 + d * dx / len)
+                })
+                .collect()
+        };
+        vec![
+            PaintStroke {
+                points: centre.clone(),
+                width_m: 0.30,
+                rgb: [60, 60, 64],
+                dash: None,
+                closed: false,
+            },
+            PaintStroke {
+                points: offset(0.14),
+                width_m: 0.02,
+                rgb: [235, 200, 40],
+                dash: None,
+                closed: false,
+            },
+            PaintStroke {
+                points: offset(-0.14),
+                width_m: 0.02,
+                rgb: [235, 200, 40],
+                dash: None,
+                closed: false,
+            },
+            PaintStroke {
+                points: centre,
+                width_m: 0.012,
+                rgb: [245, 245, 245],
+                dash: Some((0.05, 0.05)),
+                closed: false,
+            },
+        ]
+    }
+
+    fn renderer(camera: CameraModel) -> Renderer {
+        let tex = MatTexture::with_defaults(&road_strokes(), MAT).unwrap();
+        Renderer::new(tex, camera).unwrap()
+    }
+
+    fn frame(r: &Renderer, pose: Pose2) -> RecordedFrame {
+        let mut rgb = vec![0u8; r.frame_len()];
+        r.render(&pose, &mut rgb);
+        RecordedFrame {
+            pose,
+            width: r.camera().width,
+            height: r.camera().height,
+            rgb: Arc::new(rgb),
+        }
+    }
+
+    fn psnr(a: &[u8], b: &[u8], mask: &[bool]) -> f64 {
+        let (mut se, mut n) = (0.0f64, 0usize);
+        for ((pa, pb), &m) in a.chunks_exact(3).zip(b.chunks_exact(3)).zip(mask) {
+            if m {
+                for k in 0..3 {
+                    let d = pa[k] as f64 - pb[k] as f64;
+                    se += d * d;
+                }
+                n += 3;
+            }
+        }
+        assert!(n > 0);
+        let mse = se / n as f64;
+        if mse == 0.0 {
+            return f64::INFINITY;
+        }
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+
+    /// Pixels of the view from `b` whose ground point is seen, inside the frame and
+    /// below the horizon, by the camera at `a` (independent of the synthesiser's code).
+    fn inside_mask(cam: &CameraModel, a: &Pose2, b: &Pose2) -> Vec<bool> {
+        let (w, h) = (cam.width, cam.height);
+        let mut mask = Vec::with_capacity((w * h) as usize);
+        for j in 0..h {
+            for i in 0..w {
+                let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
+                let ok = cam
+                    .pixel_to_ground(b, u, v)
+                    .and_then(|(x, y)| cam.ground_to_pixel(a, x, y))
+                    .filter(|&(ua, va)| {
+                        ua >= 0.5
+                            && ua <= w as f32 - 0.5
+                            && va <= h as f32 - 0.5
+                            && cam.pixel_to_ground(a, ua, va).is_some()
+                    })
+                    .is_some();
+                mask.push(ok);
+            }
+        }
+        mask
+    }
+
+    fn side_step(a: Pose2, lateral: f32, turn_deg: f32) -> Pose2 {
+        let (s, c) = a.heading.sin_cos();
+        Pose2::new(
+            a.x - s * lateral,
+            a.y + c * lateral,
+            a.heading + turn_deg.to_radians(),
+        )
+    }
+
+    fn check_reprojection(
+        camera: CameraModel,
+        a: Pose2,
+        lateral: f32,
+        turn_deg: f32,
+    ) -> (f64, f32) {
+        let r = renderer(camera);
+        let rec = Recording {
+            camera,
+            frames: vec![frame(&r, a)],
+        };
+        let synth = Synthesizer::new(rec, 0.14).unwrap();
+        let b = side_step(a, lateral, turn_deg);
+        let mut synthesized = vec![0u8; r.frame_len()];
+        let info = synth.synthesize(&b, &mut synthesized);
+        let mut direct = vec![0u8; r.frame_len()];
+        r.render(&b, &mut direct);
+        let mask = inside_mask(&camera, &a, &b);
+        (psnr(&synthesized, &direct, &mask), info.coverage)
+    }
+
+    #[test]
+    fn synthesis_matches_direct_render_after_a_side_step_and_turn() {
+        let a = Pose2::new(0.9, 0.5, FRAC_PI_2);
+        let (p224, cov224) = check_reprojection(CameraModel::default(), a, 0.03, 5.0);
+        let cam96 = CameraModel {
+            width: 96,
+            height: 96,
+            ..CameraModel::default()
+        };
+        let (p96, cov96) = check_reprojection(cam96, a, 0.03, 5.0);
+        // In the curve, the other way.
+        let c = Pose2::new(
+            0.4 + 0.5 * 0.6f32.cos(),
+            1.4 + 0.5 * 0.6f32.sin(),
+            0.6 + FRAC_PI_2,
+        );
+        let (pcurve, covcurve) = check_reprojection(CameraModel::default(), c, -0.03, -5.0);
+        println!(
+            "reprojection PSNR: 224x224 {p224:.2} dB (coverage {cov224:.3}), 96x96 {p96:.2} dB \
+             (coverage {cov96:.3}), curve 224x224 {pcurve:.2} dB (coverage {covcurve:.3})"
+        );
+        assert!(p224 >= PSNR_BOUND_224, "224x224 PSNR {p224}");
+        assert!(p96 >= PSNR_BOUND_96, "96x96 PSNR {p96}");
+        assert!(pcurve >= PSNR_BOUND_224, "curve PSNR {pcurve}");
+        assert!(cov224 > 0.5 && cov96 > 0.5 && covcurve > 0.5);
+    }
+
+    const PSNR_BOUND_224: f64 = 28.0;
+    const PSNR_BOUND_96: f64 = 28.0;
+
+    #[test]
+    fn synthesis_at_the_recorded_pose_reproduces_the_frame() {
+        let camera = CameraModel::default();
+        let r = renderer(camera);
+        let a = Pose2::new(0.9, 0.6, FRAC_PI_2 + 0.05);
+        let f = frame(&r, a);
+        let original = f.rgb.clone();
+        let synth = Synthesizer::new(
+            Recording {
+                camera,
+                frames: vec![f],
+            },
+            0.14,
+        )
+        .unwrap();
+        let mut out = vec![0u8; r.frame_len()];
+        let info = synth.synthesize(&a, &mut out);
+        let all = vec![true; (camera.width * camera.height) as usize];
+        let p = psnr(&out, &original, &all);
+        println!("identity PSNR {p:.2} dB, coverage {}", info.coverage);
+        assert!(p >= 40.0, "identity PSNR {p}");
+        assert_eq!(info.index, 0);
+        assert!(info.valid);
+        assert!(info.lateral_m.abs() < 1e-6 && info.heading_error.abs() < 1e-6);
+        assert!(info.coverage > 0.999, "coverage {}", info.coverage);
+    }
+
+    #[test]
+    fn valid_turns_false_beyond_half_road_or_18_degrees() {
+        let camera = CameraModel {
+            width: 32,
+            height: 32,
+            ..CameraModel::default()
+        };
+        let r = renderer(camera);
+        let a = Pose2::new(0.9, 0.6, FRAC_PI_2);
+        let synth = Synthesizer::new(
+            Recording {
+                camera,
+                frames: vec![frame(&r, a)],
+            },
+            0.14,
+        )
+        .unwrap();
+        let mut out = vec![0u8; r.frame_len()];
+        let mut check = |lateral: f32, turn: f32| {
+            let info = synth.synthesize_from(0, &side_step(a, lateral, turn), &mut out);
+            assert!((info.lateral_m - lateral).abs() < 1e-4, "{info:?}");
+            assert!(
+                (info.heading_error - turn.to_radians()).abs() < 1e-4,
+                "{info:?}"
+            );
+            info.valid
+        };
+        assert!(check(0.0, 0.0));
+        assert!(check(0.13, 0.0));
+        assert!(check(-0.13, 17.0));
+        assert!(check(0.05, -17.9));
+        assert!(!check(0.15, 0.0));
+        assert!(!check(-0.15, 0.0));
+        assert!(!check(0.0, 18.5));
+        assert!(!check(0.0, -19.0));
+        assert!(!check(0.2, 30.0));
+        // Heading error wraps.
+        let info = synth.synthesize_from(
+            0,
+            &Pose2::new(0.9, 0.6, FRAC_PI_2 + 2.0 * PI + 0.1),
+            &mut out,
+        );
+        assert!((info.heading_error - 0.1).abs() < 1e-4 && info.valid);
+    }
+
+    #[test]
+    fn nearest_picks_the_right_frame() {
+        let camera = CameraModel {
+            width: 16,
+            height: 16,
+            ..CameraModel::default()
+        };
+        let blank = |pose| RecordedFrame {
+            pose,
+            width: 16,
+            height: 16,
+            rgb: Arc::new(vec![0; 16 * 16 * 3]),
+        };
+        let frames = vec![
+            blank(Pose2::new(0.9, 0.2, FRAC_PI_2)),
+            blank(Pose2::new(0.9, 0.3, FRAC_PI_2)),
+            blank(Pose2::new(0.9, 0.4, FRAC_PI_2)),
+            // The same place driven the other way (e.g. the return lane of a loop).
+            blank(Pose2::new(0.91, 0.31, -FRAC_PI_2)),
+            blank(Pose2::new(1.5, 2.0, 0.0)),
+        ];
+        let synth = Synthesizer::new(Recording { camera, frames }, 0.14).unwrap();
+        assert_eq!(synth.nearest(&Pose2::new(0.9, 0.21, FRAC_PI_2)), 0);
+        assert_eq!(synth.nearest(&Pose2::new(0.92, 0.33, FRAC_PI_2 + 0.2)), 1);
+        assert_eq!(synth.nearest(&Pose2::new(0.91, 0.31, -FRAC_PI_2 + 0.1)), 3);
+        assert_eq!(synth.nearest(&Pose2::new(0.89, 0.37, FRAC_PI_2)), 2);
+        assert_eq!(synth.nearest(&Pose2::new(1.4, 1.9, 0.3)), 4);
+        // Heading wraps: -pi and pi face the same way.
+        assert_eq!(synth.nearest(&Pose2::new(0.91, 0.31, 3.0 * FRAC_PI_2)), 3);
+        let mut out = vec![0u8; 16 * 16 * 3];
+        assert_eq!(
+            synth
+                .synthesize(&Pose2::new(0.9, 0.39, FRAC_PI_2), &mut out)
+                .index,
+            2
+        );
+    }
+
+    #[test]
+    fn new_rejects_bad_recordings() {
+        let camera = CameraModel {
+            width: 8,
+            height: 8,
+            ..CameraModel::default()
+        };
+        assert!(
+            Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![]
+                },
+                0.14
+            )
+            .is_err()
+        );
+        let wrong = RecordedFrame {
+            pose: Pose2::default(),
+            width: 16,
+            height: 8,
+            rgb: Arc::new(vec![0; 16 * 8 * 3]),
+        };
+        assert!(
+            Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![wrong]
+                },
+                0.14
+            )
+            .is_err()
+        );
+        let short = RecordedFrame {
+            pose: Pose2::default(),
+            width: 8,
+            height: 8,
+            rgb: Arc::new(vec![0; 10]),
+        };
+        assert!(
+            Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![short]
+                },
+                0.14
+            )
+            .is_err()
+        );
+        let ok = RecordedFrame {
+            pose: Pose2::default(),
+            width: 8,
+            height: 8,
+            rgb: Arc::new(vec![0; 8 * 8 * 3]),
+        };
+        assert!(
+            Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![ok.clone()]
+                },
+                0.0
+            )
+            .is_err()
+        );
+        assert!(
+            Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![ok]
+                },
+                0.14
+            )
+            .is_ok()
+        );
+    }
+
+    /// Timings (release, one core) and example pictures in /tmp; prints only.
+    #[test]
+    fn timing_and_pictures() {
+        use std::time::Instant;
+        for size in [224u32, 96] {
+            let camera = CameraModel {
+                width: size,
+                height: size,
+                ..CameraModel::default()
+            };
+            let r = renderer(camera);
+            let a = Pose2::new(0.9, 0.5, FRAC_PI_2);
+            let synth = Synthesizer::new(
+                Recording {
+                    camera,
+                    frames: vec![frame(&r, a)],
+                },
+                0.14,
+            )
+            .unwrap();
+            let mut out = vec![0u8; r.frame_len()];
+            let iters = if cfg!(debug_assertions) { 3 } else { 300 };
+            let t = Instant::now();
+            for k in 0..iters {
+                let p = Pose2::new(0.9 + 0.0001 * k as f32, 0.5 + 0.001 * k as f32, FRAC_PI_2);
+                r.render(&p, &mut out);
+            }
+            let render_ms = t.elapsed().as_secs_f64() * 1e3 / iters as f64;
+            let t = Instant::now();
+            for k in 0..iters {
+                let p = side_step(a, 0.0001 * k as f32, 0.01 * k as f32);
+                synth.synthesize(&p, &mut out);
+            }
+            let synth_ms = t.elapsed().as_secs_f64() * 1e3 / iters as f64;
+            println!(
+                "{size}x{size}: render {render_ms:.3} ms/frame, synthesize {synth_ms:.3} ms/frame"
+            );
+            if size == 224 {
+                let dir = std::env::temp_dir();
+                r.render(&Pose2::new(0.9, 0.9, FRAC_PI_2), &mut out);
+                write_png(&dir.join("jetpilot_camera_view.png"), size, size, &out).unwrap();
+                let b = side_step(a, 0.03, 5.0);
+                synth.synthesize(&b, &mut out);
+                write_png(&dir.join("jetpilot_synth_view.png"), size, size, &out).unwrap();
+                r.render(&b, &mut out);
+                write_png(&dir.join("jetpilot_direct_view.png"), size, size, &out).unwrap();
+                let trace: Vec<Pose2> = (0..60)
+                    .map(|k| {
+                        let t = k as f32 / 59.0;
+                        Pose2::new(0.9 + 0.02 * (6.0 * t).sin(), 0.25 + 1.1 * t, FRAC_PI_2)
+                    })
+                    .collect();
+                let marks = [(trace[30], [220, 30, 30])];
+                let (w, h, rgb) = top_down(r.texture(), &trace, &marks);
+                write_png(&dir.join("jetpilot_top_down.png"), w, h, &rgb).unwrap();
+            }
+        }
+    }
+}

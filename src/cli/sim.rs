@@ -1,0 +1,274 @@
+//! `jetpilot sim` (drive in the simulator) and `jetpilot eval` (the paper's test protocol).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use jetpilot::config::Config;
+use jetpilot::drive::DriveParams;
+use jetpilot::drive::stages::FrameProcessor;
+use jetpilot::policy::Policy;
+use jetpilot::sim::Pose2;
+use jetpilot::sim::closed_loop::{self, LoopTimes, Pilot};
+use jetpilot::sim::render::{top_down, write_png};
+use jetpilot::sim::reward::autonomy;
+use jetpilot::sim::setup::{self, SimRig};
+
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Config file: `[sim]` plus the robot's usual sections (the motor layout decides how the
+    /// virtual HAT's channels reach the wheels). See config/sim.toml.
+    #[arg(short, long, value_name = "FILE")]
+    config: PathBuf,
+    /// Model to drive with (default: the config's `model.path`).
+    #[arg(short, long, value_name = "FILE", conflicts_with = "expert")]
+    model: Option<PathBuf>,
+    /// Drive with the scripted pure-pursuit expert instead of a model.
+    #[arg(long)]
+    expert: bool,
+    /// Simulated seconds.
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+    /// Write pictures a person can look at into this folder: `frames.png` (a strip of camera
+    /// frames) and `trace.png` (the mat from above with the driven path and interventions).
+    #[arg(long, value_name = "DIR")]
+    png: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Config file with a `[sim]` section (see config/sim.toml).
+    #[arg(short, long, value_name = "FILE")]
+    config: PathBuf,
+    /// Model to evaluate (default: the config's `model.path`).
+    #[arg(short, long, value_name = "FILE", conflicts_with = "expert")]
+    model: Option<PathBuf>,
+    /// Evaluate the scripted expert instead (the bar a model should reach).
+    #[arg(long)]
+    expert: bool,
+    /// Test length in simulated seconds (default: `sim.eval_seconds`, 600 as in the paper).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Also write the result as JSON.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Also write the top-down trace with interventions as a PNG.
+    #[arg(long, value_name = "FILE")]
+    png: Option<PathBuf>,
+}
+
+/// The paper's numbers for one run.
+#[derive(Debug, serde::Serialize)]
+pub struct EvalResult {
+    pub pilot: String,
+    pub test_seconds: f64,
+    pub interventions: u32,
+    /// `(1 - interventions * 6 / test_seconds) * 100`.
+    pub autonomy_percent: f32,
+    /// Control steps whose reward reached the threshold ("one reward").
+    pub rewards: u64,
+    pub control_steps: u64,
+    pub mean_reward: f64,
+    pub laps: f64,
+    pub distance_m: f64,
+    pub mean_speed_mps: f64,
+    pub wall_seconds: f64,
+    pub realtime_factor: f64,
+    pub wall_share: WallShare,
+}
+
+/// Fractions of the wall time per part of the loop.
+#[derive(Debug, serde::Serialize)]
+pub struct WallShare {
+    pub frames: f64,
+    pub pilot: f64,
+    pub motors: f64,
+    pub physics_and_scoring: f64,
+}
+
+struct Driven {
+    result: EvalResult,
+    trace: Vec<Pose2>,
+    strip: Vec<Vec<u8>>,
+}
+
+fn drive(
+    cfg: &Config,
+    model: Option<&Path>,
+    expert: bool,
+    seconds: f64,
+    strip_every: Option<u64>,
+) -> anyhow::Result<(SimRig, Driven)> {
+    let mut rig = setup::build(cfg)?;
+    let mut policy = if expert {
+        None
+    } else {
+        Some(jetpilot::drive::setup::load_policy(cfg, model)?)
+    };
+    let params = DriveParams::from_config(cfg);
+    let (name, mut pilot) = match policy.as_mut() {
+        Some(p) => {
+            let name = p.describe();
+            let processor =
+                FrameProcessor::new(&p.contract().clone(), params.gains, params.max_abs_output);
+            (
+                name,
+                Pilot::Model {
+                    policy: p as &mut dyn Policy,
+                    processor,
+                },
+            )
+        }
+        None => (
+            "scripted expert (pure pursuit)".to_string(),
+            Pilot::expert(cfg.sim.expert, cfg.sim.seed),
+        ),
+    };
+    let mut trace = Vec::new();
+    let mut strip = Vec::new();
+    let size = (cfg.sim.camera.width, cfg.sim.camera.height);
+    let settings = cfg.sim.loop_settings(seconds, cfg);
+    let every = (cfg.sim.control_hz / 10.0).max(1.0) as u64;
+    let times: LoopTimes = closed_loop::run(
+        &mut rig.world,
+        &mut rig.motors,
+        &mut pilot,
+        &settings,
+        size,
+        |step| {
+            if step.seq % every == 0 {
+                trace.push(step.pose);
+            }
+            if let Some(n) = strip_every
+                && step.seq % n == 0
+                && strip.len() < 8
+            {
+                strip.push(step.frame.rgb.as_ref().clone());
+            }
+        },
+    )?;
+    let s = &rig.world.stats;
+    let total = times.total.max(1e-9);
+    let result = EvalResult {
+        pilot: name,
+        test_seconds: s.time_s,
+        interventions: s.interventions,
+        autonomy_percent: autonomy(s.interventions, s.time_s as f32),
+        rewards: s.rewards,
+        control_steps: s.control_steps,
+        mean_reward: s.reward_sum / s.control_steps.max(1) as f64,
+        laps: rig.world.laps(),
+        distance_m: s.distance_m,
+        mean_speed_mps: s.distance_m / s.time_s.max(1e-9),
+        wall_seconds: times.total,
+        realtime_factor: s.time_s / total,
+        wall_share: WallShare {
+            frames: times.frames / total,
+            pilot: times.pilot / total,
+            motors: times.motors / total,
+            physics_and_scoring: times.physics / total,
+        },
+    };
+    Ok((
+        rig,
+        Driven {
+            result,
+            trace,
+            strip,
+        },
+    ))
+}
+
+fn print_result(r: &EvalResult) {
+    println!(
+        "{:.0} s simulated in {:.1} s wall ({:.1}x real time), pilot: {}",
+        r.test_seconds, r.wall_seconds, r.realtime_factor, r.pilot
+    );
+    println!(
+        "  interventions  {}   autonomy {:.1} %  ((1 - n * 6 s / {:.0} s) * 100)",
+        r.interventions, r.autonomy_percent, r.test_seconds
+    );
+    println!(
+        "  rewards        {} of {} steps with R >= threshold (mean R {:.3})",
+        r.rewards, r.control_steps, r.mean_reward
+    );
+    println!(
+        "  laps           {:.2}   distance {:.1} m   mean speed {:.3} m/s",
+        r.laps, r.distance_m, r.mean_speed_mps
+    );
+    let w = &r.wall_share;
+    println!(
+        "  wall time      frames {:.0} %, pilot {:.0} %, motor driver {:.0} %, physics + scoring {:.0} %",
+        w.frames * 100.0,
+        w.pilot * 100.0,
+        w.motors * 100.0,
+        w.physics_and_scoring * 100.0
+    );
+}
+
+fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()> {
+    let texture = jetpilot::sim::render::MatTexture::new(
+        &rig.world.track.paint(),
+        rig.world.track.mat_size(),
+        200.0,
+        [96, 120, 92],
+        [150, 130, 110],
+    )?;
+    let marks: Vec<(Pose2, [u8; 3])> = rig
+        .world
+        .stats
+        .intervention_poses
+        .iter()
+        .map(|p| (*p, [220, 30, 30]))
+        .collect();
+    let (w, h, rgb) = top_down(&texture, trace, &marks);
+    write_png(path, w, h, &rgb)?;
+    Ok(())
+}
+
+pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
+    let (rig, driven) = drive(
+        &cfg,
+        args.model.as_deref(),
+        args.expert,
+        args.seconds,
+        args.png.as_ref().map(|_| every),
+    )?;
+    print_result(&driven.result);
+    if let Some(dir) = &args.png {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
+        if !driven.strip.is_empty() {
+            let n = driven.strip.len() as u32;
+            let mut strip = vec![0u8; (w * n * h * 3) as usize];
+            for (i, f) in driven.strip.iter().enumerate() {
+                for row in 0..h as usize {
+                    let src = &f[row * w as usize * 3..(row + 1) * w as usize * 3];
+                    let dst = (row * (w * n) as usize + i * w as usize) * 3;
+                    strip[dst..dst + src.len()].copy_from_slice(src);
+                }
+            }
+            write_png(&dir.join("frames.png"), w * n, h, &strip)?;
+        }
+        write_trace(&rig, &driven.trace, &dir.join("trace.png"))?;
+        println!("wrote {0}/frames.png and {0}/trace.png", dir.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);
+    let (rig, driven) = drive(&cfg, args.model.as_deref(), args.expert, seconds, None)?;
+    print_result(&driven.result);
+    if let Some(p) = &args.json {
+        let text = serde_json::to_string_pretty(&driven.result)?;
+        std::fs::write(p, text + "\n").with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    if let Some(p) = &args.png {
+        write_trace(&rig, &driven.trace, p)?;
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,207 @@
+//! The `[sim]` config section and building a simulated world from a [`Config`]: the
+//! track, the virtual PCA9685 with the daemon's own motor driver on it, the robot, and the
+//! frame maker (renderer, or replayed-frame synthesis from a recording).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use super::camera::CameraModel;
+use super::closed_loop::{self, LoopSettings, Pilot};
+use super::expert::ExpertParams;
+use super::render::{MatTexture, Renderer};
+use super::reward::RewardParams;
+use super::robot::RobotParams;
+use super::synth::{RecordedFrame, Recording, Synthesizer};
+use super::track::Track;
+use super::virtual_hat::VirtualPca9685;
+use super::world::{FrameMaker, World};
+use super::{Pose2, SimError};
+use crate::config::Config;
+use crate::hw::MotorHat;
+use crate::hw::motor_hat::HatSettings;
+
+/// How the simulated camera makes frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameMode {
+    /// Draw the mat at the exact pose.
+    Render,
+    /// Re-project the nearest frame of a recording (the replayed-frame simulator).
+    Replay,
+}
+
+/// `[sim]`: the simulator. Every key has a default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    /// Track file; unset: the built-in JetBot mat (config/tracks/jetbot_mat.toml).
+    pub track: Option<PathBuf>,
+    pub frames: FrameMode,
+    /// `replay`: spacing of the frames the expert records on its lap, metres.
+    pub record_spacing_m: f32,
+    pub control_hz: f32,
+    pub physics_hz: f32,
+    pub seed: u64,
+    /// Length of `jetpilot eval`'s test, simulated seconds (the paper: 600).
+    pub eval_seconds: f32,
+    /// Texels per metre of the mat texture.
+    pub mat_px_per_m: f32,
+    pub camera: CameraModel,
+    pub robot: RobotParams,
+    pub reward: RewardParams,
+    pub expert: ExpertParams,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            track: None,
+            frames: FrameMode::Render,
+            record_spacing_m: 0.02,
+            control_hz: 30.0,
+            physics_hz: 240.0,
+            seed: 0,
+            eval_seconds: 600.0,
+            mat_px_per_m: 400.0,
+            camera: CameraModel::default(),
+            robot: RobotParams::default(),
+            reward: RewardParams::default(),
+            expert: ExpertParams::default(),
+        }
+    }
+}
+
+impl SimConfig {
+    pub fn loop_settings(&self, seconds: f64, cfg: &Config) -> LoopSettings {
+        LoopSettings {
+            seconds,
+            control_hz: self.control_hz,
+            physics_hz: self.physics_hz,
+            watchdog: std::time::Duration::from_millis(cfg.safety.watchdog_ms),
+        }
+    }
+}
+
+/// A world and the motor driver that moves it.
+pub struct SimRig {
+    pub world: World,
+    pub motors: MotorHat<VirtualPca9685>,
+    pub hat: VirtualPca9685,
+    pub camera: CameraModel,
+}
+
+fn renderer(cfg: &SimConfig, track: &Track) -> Result<Renderer, SimError> {
+    let texture = MatTexture::new(
+        &track.paint(),
+        track.mat_size(),
+        cfg.mat_px_per_m,
+        [96, 120, 92],
+        [150, 130, 110],
+    )?;
+    Renderer::new(texture, cfg.camera)
+}
+
+/// Loads the track named by the config (or the built-in mat).
+pub fn load_track(cfg: &SimConfig) -> Result<Track, SimError> {
+    match &cfg.track {
+        Some(p) => Track::load(p),
+        None => Ok(Track::jetbot_mat()),
+    }
+}
+
+/// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it
+/// would the real one (layout, address, trims from `[motors]`).
+pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
+    let sim = &cfg.sim;
+    let track = load_track(sim)?;
+    let frames = match sim.frames {
+        FrameMode::Render => FrameMaker::Render(renderer(sim, &track)?),
+        FrameMode::Replay => {
+            let recording = expert_lap_recording(cfg, &track)?;
+            tracing::info!(
+                frames = recording.frames.len(),
+                "replay: recorded one expert lap to re-project"
+            );
+            FrameMaker::Replay(Synthesizer::new(recording, track.road_half_width())?)
+        }
+    };
+    rig(cfg, track, frames)
+}
+
+fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimError> {
+    let mut settings: HatSettings = cfg.motors.hat_settings();
+    settings.bus_name = "virtual PCA9685".into();
+    let hat = VirtualPca9685::new(settings.address);
+    let (il, ir) = (settings.left.invert, settings.right.invert);
+    let layout = settings.layout;
+    let motors = MotorHat::init(hat.clone(), settings, &mut NoDelay)
+        .map_err(|e| SimError::Invalid(format!("virtual motor HAT: {e}")))?;
+    let world = World::new(
+        track,
+        cfg.sim.robot,
+        hat.clone(),
+        layout,
+        (il, ir),
+        frames,
+        cfg.sim.reward,
+        cfg.sim.seed,
+    );
+    Ok(SimRig {
+        world,
+        motors,
+        hat,
+        camera: cfg.sim.camera,
+    })
+}
+
+/// Simulated time needs no real waiting.
+struct NoDelay;
+impl embedded_hal::delay::DelayNs for NoDelay {
+    fn delay_ns(&mut self, _ns: u32) {}
+}
+
+/// The recording for replay mode: the expert drives one lap in the rendered world, and a
+/// frame is kept every `record_spacing_m` along with the pose it was taken at.
+pub fn expert_lap_recording(cfg: &Config, track: &Track) -> Result<Recording, SimError> {
+    let sim = &cfg.sim;
+    let mut r = rig(
+        cfg,
+        track.clone(),
+        FrameMaker::Render(renderer(sim, track)?),
+    )?;
+    let mut pilot = Pilot::expert(sim.expert, sim.seed);
+    let lap_seconds = track.length() as f64 / sim.expert.speed_mps.max(0.05) as f64 * 1.6;
+    let mut frames: Vec<RecordedFrame> = Vec::new();
+    let mut last: Option<Pose2> = None;
+    let mut travelled = 0.0f32;
+    let (w, h) = (sim.camera.width, sim.camera.height);
+    closed_loop::run(
+        &mut r.world,
+        &mut r.motors,
+        &mut pilot,
+        &sim.loop_settings(lap_seconds, cfg),
+        (w, h),
+        |step| {
+            if let Some(p) = last {
+                travelled += (step.pose.x - p.x).hypot(step.pose.y - p.y);
+            }
+            last = Some(step.pose);
+            if frames.is_empty() || travelled >= sim.record_spacing_m {
+                travelled = 0.0;
+                frames.push(RecordedFrame {
+                    pose: step.pose,
+                    width: w,
+                    height: h,
+                    rgb: Arc::new(step.frame.rgb.as_ref().clone()),
+                });
+            }
+        },
+    )
+    .map_err(|e| SimError::Invalid(format!("recording the expert lap: {e}")))?;
+    Ok(Recording {
+        camera: sim.camera,
+        frames,
+    })
+}

@@ -1,0 +1,182 @@
+//! The simulated world: the robot on the track, moved by whatever the daemon's motor driver
+//! wrote into the virtual PCA9685, seen through the camera (rendered, or re-projected from a
+//! recording), scored with the paper's reward, with interventions when it leaves the road.
+//!
+//! One control period is: [`World::observe`] (camera frame at the current pose), the pilot
+//! writes the motors, [`World::advance`] (physics substeps reading the HAT's registers), then
+//! [`World::score`] (reward, intervention, laps).
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::reward::{RewardParams, is_reward, reward};
+use super::robot::{Robot, RobotParams};
+use super::synth::Synthesizer;
+use super::track::Track;
+use super::virtual_hat::VirtualPca9685;
+use super::{Pose2, render::Renderer};
+use crate::hw::HatLayout;
+
+/// How camera frames are made.
+pub enum FrameMaker {
+    /// Drawn from the mat texture at the exact pose.
+    Render(Renderer),
+    /// Re-projected from the nearest recorded frame; only faithful near the recording.
+    Replay(Synthesizer),
+}
+
+/// What the simulation has counted so far.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct WorldStats {
+    /// Simulated seconds.
+    pub time_s: f64,
+    pub control_steps: u64,
+    pub interventions: u32,
+    /// Steps whose reward reached the count threshold ("one reward" in the paper).
+    pub rewards: u64,
+    pub reward_sum: f64,
+    /// Distance driven, metres.
+    pub distance_m: f64,
+    /// Signed progress along the track, metres (laps = progress / length).
+    pub progress_m: f64,
+    /// Where each intervention happened.
+    pub intervention_poses: Vec<Pose2>,
+}
+
+/// The outcome of one control period.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepScore {
+    pub reward: f32,
+    /// The robot left the road (or the replayed view went out of its validity bounds) and
+    /// was put back on the lane: one intervention.
+    pub intervention: bool,
+    /// Lane-edge distance and speed that went into the reward.
+    pub edge_distance_m: f32,
+    pub speed_mps: f32,
+}
+
+pub struct World {
+    pub track: Track,
+    pub robot: Robot,
+    hat: VirtualPca9685,
+    layout: HatLayout,
+    invert: (bool, bool),
+    frames: FrameMaker,
+    reward: RewardParams,
+    rng: ChaCha8Rng,
+    pub stats: WorldStats,
+    last_s: f32,
+    view_valid: bool,
+}
+
+impl World {
+    /// `hat` is a handle on the virtual PCA9685 the daemon's driver writes to; `layout` and
+    /// `invert` say how its channels reach the wheels (as on the real robot).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        track: Track,
+        robot: RobotParams,
+        hat: VirtualPca9685,
+        layout: HatLayout,
+        invert: (bool, bool),
+        frames: FrameMaker,
+        reward: RewardParams,
+        seed: u64,
+    ) -> Self {
+        let start = track.lane_pose_at(0.0);
+        let mut w = Self {
+            robot: Robot::new(robot, start),
+            track,
+            hat,
+            layout,
+            invert,
+            frames,
+            reward,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            stats: WorldStats::default(),
+            last_s: 0.0,
+            view_valid: true,
+        };
+        w.reset_at(0.0);
+        w
+    }
+
+    /// Puts the robot at rest on the driving lane's centre at progress `s`.
+    pub fn reset_at(&mut self, s: f32) {
+        let pose = self.track.lane_pose_at(s);
+        self.robot.reset(pose);
+        self.last_s = self.track.query(pose.x, pose.y).s;
+        self.view_valid = true;
+    }
+
+    pub fn pose(&self) -> Pose2 {
+        self.robot.pose
+    }
+
+    /// The camera frame at the current pose into `out` (`width * height * 3` RGB8).
+    pub fn observe(&mut self, out: &mut [u8]) {
+        let pose = self.robot.pose;
+        match &self.frames {
+            FrameMaker::Render(r) => {
+                r.render(&pose, out);
+                self.view_valid = true;
+            }
+            FrameMaker::Replay(s) => {
+                self.view_valid = s.synthesize(&pose, out).valid;
+            }
+        }
+    }
+
+    /// Physics for `dt` seconds with the wheel duties the HAT's registers say now.
+    pub fn advance(&mut self, dt: f32) {
+        let (l, r) = self
+            .hat
+            .wheel_duties(self.layout, self.invert.0, self.invert.1);
+        let before = self.robot.pose;
+        self.robot.step(l, r, dt, &mut self.rng);
+        let after = self.robot.pose;
+        self.stats.distance_m += ((after.x - before.x).hypot(after.y - before.y)) as f64;
+        self.stats.time_s += dt as f64;
+    }
+
+    /// Reward, interventions and progress at the end of a control period.
+    pub fn score(&mut self) -> StepScore {
+        let p = self.robot.pose;
+        let q = self.track.query(p.x, p.y);
+        self.stats.progress_m += self.track.progress_delta(self.last_s, q.s) as f64;
+        self.last_s = q.s;
+        self.stats.control_steps += 1;
+        let edge = self.track.lane_edge_distance(p.x, p.y);
+        let speed = self.robot.speed();
+        if !self.track.on_road(p.x, p.y) || !self.view_valid {
+            self.stats.interventions += 1;
+            self.stats.intervention_poses.push(p);
+            self.reset_at(q.s);
+            return StepScore {
+                reward: 0.0,
+                intervention: true,
+                edge_distance_m: edge,
+                speed_mps: speed,
+            };
+        }
+        let r = reward(edge, speed, &self.reward);
+        self.stats.reward_sum += r as f64;
+        if is_reward(r, &self.reward) {
+            self.stats.rewards += 1;
+        }
+        StepScore {
+            reward: r,
+            intervention: false,
+            edge_distance_m: edge,
+            speed_mps: speed,
+        }
+    }
+
+    pub fn laps(&self) -> f64 {
+        self.stats.progress_m / self.track.length() as f64
+    }
+
+    pub fn reward_params(&self) -> &RewardParams {
+        &self.reward
+    }
+}
