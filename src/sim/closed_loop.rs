@@ -32,7 +32,7 @@ pub enum Pilot<'a> {
     /// The scripted pure-pursuit expert (it sees the track, not the frames).
     Expert {
         params: ExpertParams,
-        rng: ChaCha8Rng,
+        rng: Box<ChaCha8Rng>,
     },
 }
 
@@ -40,7 +40,7 @@ impl<'a> Pilot<'a> {
     pub fn expert(params: ExpertParams, seed: u64) -> Self {
         Pilot::Expert {
             params,
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            rng: Box::new(ChaCha8Rng::seed_from_u64(seed)),
         }
     }
 }
@@ -126,7 +126,13 @@ pub fn run(
                     (cmd.wheels, Some(cmd.outputs), None)
                 }
                 Pilot::Expert { params, rng } => {
-                    let a = pursue(&world.track, &pose, world.robot.params(), params, rng);
+                    let a = pursue(
+                        &world.track,
+                        &pose,
+                        world.robot.params(),
+                        params,
+                        &mut **rng,
+                    );
                     (a.wheels, None, Some(a))
                 }
             };

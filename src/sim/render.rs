@@ -860,3 +860,33 @@ pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<(), SimError
     )
     .map_err(|e| file_err(e.to_string()))
 }
+#[cfg(test)]
+mod stats_tmp {
+    use super::*;
+    #[test]
+    fn ray_stats() {
+        let tex = MatTexture::with_defaults(&[], (1.83, 2.74)).unwrap();
+        let r = Renderer::new(tex, CameraModel::default()).unwrap();
+        let ground = r.rays.iter().filter(|r| r.probes > 0).count();
+        let probes: usize = r.rays.iter().map(|r| r.probes as usize).sum();
+        let samples: usize = r
+            .rays
+            .iter()
+            .map(|r| {
+                r.probes as usize
+                    * if r.tri > 0 && (r.tri as u32) < TRI_ONE {
+                        2
+                    } else {
+                        1
+                    }
+            })
+            .sum();
+        let mut hist = [0usize; 6];
+        for ray in &r.rays {
+            if ray.probes > 0 {
+                hist[ray.level as usize] += 1;
+            }
+        }
+        println!("ground {ground} probes {probes} samples {samples} levels {hist:?}");
+    }
+}
