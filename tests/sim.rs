@@ -87,7 +87,7 @@ fn leaving_the_road_counts_interventions_and_recentres() {
     let processor = FrameProcessor::new(policy.contract(), params.gains, 10.0);
     let mut pilot = Pilot::Model {
         policy: &mut policy,
-        processor,
+        processor: Box::new(processor),
     };
     let mut seen = 0u32;
     closed_loop::run(
@@ -134,7 +134,7 @@ fn a_simulated_run_is_deterministic_for_a_seed() {
         let processor = FrameProcessor::new(&policy.contract().clone(), params.gains, 10.0);
         let mut pilot = Pilot::Model {
             policy: &mut policy,
-            processor,
+            processor: Box::new(processor),
         };
         let mut log = String::new();
         closed_loop::run(

@@ -115,7 +115,7 @@ fn drive(
                 name,
                 Pilot::Model {
                     policy: p as &mut dyn Policy,
-                    processor,
+                    processor: Box::new(processor),
                 },
             )
         }

@@ -27,7 +27,7 @@ pub enum Pilot<'a> {
     /// A policy network through the daemon's per-frame work.
     Model {
         policy: &'a mut dyn Policy,
-        processor: FrameProcessor,
+        processor: Box<FrameProcessor>,
     },
     /// The scripted pure-pursuit expert (it sees the track, not the frames).
     Expert {
