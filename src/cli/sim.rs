@@ -10,6 +10,7 @@ use jetpilot::drive::stages::FrameProcessor;
 use jetpilot::policy::Policy;
 use jetpilot::sim::Pose2;
 use jetpilot::sim::closed_loop::{self, LoopTimes, Pilot};
+use jetpilot::sim::demos::DemoRecorder;
 use jetpilot::sim::render::{top_down, write_png};
 use jetpilot::sim::reward::autonomy;
 use jetpilot::sim::setup::{self, SimRig};
@@ -29,6 +30,13 @@ pub struct SimArgs {
     /// Simulated seconds.
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
+    /// Record the drive as demonstrations: a DonkeyCar tub v2 (frames, wheels, angle/throttle,
+    /// poses, rewards, JetBot target labels) in this folder.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+    /// With --record: also write JetBot's road-following folder (xy_XXX_YYY_<uuid>.jpg).
+    #[arg(long, value_name = "DIR", requires = "record")]
+    record_xy: Option<PathBuf>,
     /// Write pictures a person can look at into this folder: `frames.png` (a strip of camera
     /// frames) and `trace.png` (the mat from above with the driven path and interventions).
     #[arg(long, value_name = "DIR")]
@@ -98,6 +106,7 @@ fn drive(
     expert: bool,
     seconds: f64,
     strip_every: Option<u64>,
+    mut recorder: Option<&mut DemoRecorder>,
 ) -> anyhow::Result<(SimRig, Driven)> {
     let mut rig = setup::build(cfg)?;
     let mut policy = if expert {
@@ -129,6 +138,7 @@ fn drive(
     let size = (cfg.sim.camera.width, cfg.sim.camera.height);
     let settings = cfg.sim.loop_settings(seconds, cfg);
     let every = (cfg.sim.control_hz / 10.0).max(1.0) as u64;
+    let mut record_error = None;
     let times: LoopTimes = closed_loop::run(
         &mut rig.world,
         &mut rig.motors,
@@ -145,8 +155,17 @@ fn drive(
             {
                 strip.push(step.frame.rgb.as_ref().clone());
             }
+            if let Some(r) = recorder.as_deref_mut()
+                && record_error.is_none()
+                && let Err(e) = r.append(step)
+            {
+                record_error = Some(e);
+            }
         },
     )?;
+    if let Some(e) = record_error {
+        return Err(anyhow::Error::new(e).context("recording stopped (what was written is kept)"));
+    }
     let s = &rig.world.stats;
     let total = times.total.max(1e-9);
     let result = EvalResult {
@@ -229,14 +248,35 @@ fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()>
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
+    let mut recorder = match &args.record {
+        Some(dir) => {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs_f64())
+                .unwrap_or(0.0);
+            Some(DemoRecorder::create(
+                dir,
+                args.record_xy.as_deref(),
+                cfg.sim.camera,
+                now,
+                cfg.sim.seed,
+            )?)
+        }
+        None => None,
+    };
     let (rig, driven) = drive(
         &cfg,
         args.model.as_deref(),
         args.expert,
         args.seconds,
         args.png.as_ref().map(|_| every),
+        recorder.as_mut(),
     )?;
     print_result(&driven.result);
+    if let (Some(r), Some(dir)) = (recorder, &args.record) {
+        let n = r.finish()?;
+        println!("recorded {n} steps to {}", dir.display());
+    }
     if let Some(dir) = &args.png {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
@@ -261,7 +301,14 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
 pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);
-    let (rig, driven) = drive(&cfg, args.model.as_deref(), args.expert, seconds, None)?;
+    let (rig, driven) = drive(
+        &cfg,
+        args.model.as_deref(),
+        args.expert,
+        seconds,
+        None,
+        None,
+    )?;
     print_result(&driven.result);
     if let Some(p) = &args.json {
         let text = serde_json::to_string_pretty(&driven.result)?;

@@ -18,6 +18,7 @@
 
 pub mod camera;
 pub mod closed_loop;
+pub mod demos;
 pub mod expert;
 pub mod render;
 pub mod reward;

@@ -552,8 +552,11 @@ impl Renderer {
                 };
                 let area = (du.0 * dv.1 - du.1 * dv.0).abs();
                 let minor_len = (area / major_len.max(1e-12)).max(1e-9);
-                let probes = ((major_len / minor_len).ceil() as u32).clamp(1, MAX_PROBES);
-                let size = minor_len.max(major_len / probes as f32);
+                // Filter size: the short axis, but no finer than a texel and no finer than
+                // the long axis split among the most probes; probes cover the long axis.
+                let texel = 1.0 / ppm;
+                let size = minor_len.max(texel).max(major_len / MAX_PROBES as f32);
+                let probes = ((major_len / size).round() as u32).clamp(1, MAX_PROBES);
                 let lod = (size * ppm).log2().clamp(0.0, max_level);
                 let level = (lod.floor() as usize).min(NUM_LEVELS - 1);
                 let frac = if level + 1 < NUM_LEVELS {

@@ -1,0 +1,109 @@
+//! Writing simulated drives as demonstrations, in the same formats as real ones, so the
+//! trainer reads sim and robot data the same way: a DonkeyCar tub v2 with everything
+//! (frame, sim time, mode, the wheels sent, angle/throttle, pose, reward, JetBot target
+//! label), and optionally JetBot's road-following xy folder.
+//!
+//! Angle and throttle from tank-style wheel commands: `throttle = (left + right) / 2`,
+//! `angle = (left - right) / 2` (positive turns right, as DonkeyCar's angle).
+
+use std::path::Path;
+
+use image::ExtendedColorType;
+use image::codecs::jpeg::JpegEncoder;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::closed_loop::StepRecord;
+use super::expert::target_label;
+use crate::dataset::tub::{DriveMode, TubInputs, TubRecord, TubWriter};
+use crate::dataset::{DatasetError, jetbot_xy};
+use crate::sim::camera::CameraModel;
+
+/// Records simulated steps.
+pub struct DemoRecorder {
+    tub: TubWriter,
+    xy_dir: Option<std::path::PathBuf>,
+    camera: CameraModel,
+    rng: ChaCha8Rng,
+    jpeg: Vec<u8>,
+    written: u64,
+}
+
+/// `(angle, throttle)` from wheel commands.
+pub fn angle_throttle(left: f32, right: f32) -> (f32, f32) {
+    ((left - right) / 2.0, (left + right) / 2.0)
+}
+
+impl DemoRecorder {
+    /// `created_at` (Unix seconds) stamps the tub's session; `xy_dir` also writes JetBot's
+    /// format (one file per step whose target point is in view).
+    pub fn create(
+        tub_dir: &Path,
+        xy_dir: Option<&Path>,
+        camera: CameraModel,
+        created_at: f64,
+        seed: u64,
+    ) -> Result<Self, DatasetError> {
+        if let Some(d) = xy_dir {
+            std::fs::create_dir_all(d).map_err(|source| DatasetError::Io {
+                path: d.display().to_string(),
+                source,
+            })?;
+        }
+        Ok(Self {
+            tub: TubWriter::create(tub_dir, &TubInputs::ALL, created_at)?,
+            xy_dir: xy_dir.map(Path::to_path_buf),
+            camera,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            jpeg: Vec::new(),
+            written: 0,
+        })
+    }
+
+    /// Appends one step. The expert's steps are "user" (the human stand-in), a model's "local".
+    pub fn append(&mut self, step: &StepRecord<'_>) -> Result<(), DatasetError> {
+        let f = step.frame;
+        self.jpeg.clear();
+        JpegEncoder::new_with_quality(&mut self.jpeg, 90)
+            .encode(&f.rgb, f.width, f.height, ExtendedColorType::Rgb8)
+            .map_err(|source| DatasetError::Image {
+                path: "(simulated frame)".into(),
+                source,
+            })?;
+        let (angle, throttle) = angle_throttle(step.wheels.left, step.wheels.right);
+        let mode = if step.expert.is_some() {
+            DriveMode::User
+        } else {
+            DriveMode::Local
+        };
+        let mut rec = TubRecord::new(step.time.as_millis() as u64, angle, throttle, mode);
+        rec.wheels = Some((step.wheels.left, step.wheels.right));
+        rec.pose = Some((step.pose.x, step.pose.y, step.pose.heading));
+        rec.reward = Some(step.score.reward);
+        if step.expert.is_none() {
+            rec.pilot_angle = Some(angle);
+            rec.pilot_throttle = Some(throttle);
+        }
+        let label = step
+            .expert
+            .and_then(|a| target_label(&self.camera, &step.pose, a.target));
+        rec.target = label;
+        self.tub.append(&rec, &self.jpeg)?;
+        if let (Some(dir), Some((x, y))) = (&self.xy_dir, label) {
+            let (px, py) = jetbot_xy::pixel_for_label(x, y, f.width, f.height);
+            let uuid = jetbot_xy::uuid_from_rng(&mut self.rng);
+            jetbot_xy::write_sample(dir, px, py, &self.jpeg, &uuid)?;
+        }
+        self.written += 1;
+        if self.written % 300 == 0 {
+            self.tub.flush_and_sync()?;
+        }
+        Ok(())
+    }
+
+    /// Flushes and syncs everything written.
+    pub fn finish(mut self) -> Result<u64, DatasetError> {
+        self.tub.flush_and_sync()?;
+        Ok(self.written)
+    }
+}
