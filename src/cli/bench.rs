@@ -70,6 +70,10 @@ pub struct BenchArgs {
     /// Also write the results to this file as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+    /// Measure the simulator instead: mat rendering and replayed-frame synthesis at
+    /// 224x224 and 96x96 on one thread.
+    #[arg(long)]
+    pub sim: bool,
 }
 
 /// The five measurements, in the order of the table.
@@ -678,6 +682,9 @@ fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
 }
 
 pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
+    if args.sim {
+        return super::bench_sim::main(args.iterations);
+    }
     let (library, env) = runtime::environment(None)?;
     let frames: Vec<Vec<u8>> = (0..FRAMES)
         .map(|i| render_road(FRAME_W, FRAME_H, sample_view(i, FRAMES)))

@@ -164,8 +164,9 @@ impl CameraModel {
             1.0,
         );
         let d = e.rot * d_cam;
-        if !(d.z < -1e-12) {
-            return None; // at or above the horizon (or NaN input)
+        // At or above the horizon, or NaN input.
+        if d.z.is_nan() || d.z >= -1e-12 {
+            return None;
         }
         let s = -e.centre.z / d.z;
         let (dx, dy) = (s * d.x, s * d.y);
@@ -189,7 +190,7 @@ impl CameraModel {
     pub fn ground_to_pixel(&self, pose: &Pose2, x: f32, y: f32) -> Option<(f32, f32)> {
         let e = self.extrinsics(pose);
         let p = e.rot.transpose() * (Vector3::new(x as f64, y as f64, 0.0) - e.centre);
-        if !(p.z > 1e-9) {
+        if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
         let f = self.focal64();
@@ -379,11 +380,15 @@ mod tests {
 
     #[test]
     fn validate_rejects_nonsense() {
-        let mut cam = CameraModel::default();
-        cam.height_m = 0.0;
+        let cam = CameraModel {
+            height_m: 0.0,
+            ..CameraModel::default()
+        };
         assert!(cam.validate().is_err());
-        let mut cam = CameraModel::default();
-        cam.hfov_deg = 180.0;
+        let cam = CameraModel {
+            hfov_deg: 180.0,
+            ..CameraModel::default()
+        };
         assert!(cam.validate().is_err());
         let cam: CameraModel = serde_json::from_str(r#"{"width": 96, "height": 96}"#).unwrap();
         assert_eq!(cam.width, 96);

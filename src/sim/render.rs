@@ -588,8 +588,8 @@ impl Renderer {
         Ok(renderer)
     }
 
-    /// Sets the wall colour (seen above the horizon): `rgb` at the horizon, brightening
-    /// slightly (up to about 10 %) towards the top of the image.
+    /// Sets the wall colour (seen above the horizon): `rgb` scaled by 0.95 at the horizon,
+    /// brightening linearly to 1.10 at the top of the image.
     pub fn set_wall_rgb(&mut self, rgb: [u8; 3]) {
         let h = self.camera.height as usize;
         let horizon = self.camera.horizon_v().max(1.0);
@@ -863,33 +863,222 @@ pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<(), SimError
     )
     .map_err(|e| file_err(e.to_string()))
 }
+
 #[cfg(test)]
-mod stats_tmp {
+mod tests {
     use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use std::f32::consts::FRAC_PI_2;
+
+    const MAT: (f32, f32) = (1.83, 2.74);
+    const ROAD: [u8; 3] = [60, 60, 64];
+    const EDGE: [u8; 3] = [235, 200, 40];
+    const WHITE: [u8; 3] = [245, 245, 245];
+
+    /// A straight road up the mat at x = 0.9: surface, two edges, dashed centre line.
+    fn straight_road() -> Vec<PaintStroke> {
+        let line = |x: f32, width_m: f32, rgb, dash| PaintStroke {
+            points: vec![(x, 0.1), (x, 2.6)],
+            width_m,
+            rgb,
+            dash,
+            closed: false,
+        };
+        vec![
+            line(0.9, 0.30, ROAD, None),
+            line(0.76, 0.02, EDGE, None),
+            line(1.04, 0.02, EDGE, None),
+            line(0.9, 0.012, WHITE, Some((0.05, 0.05))),
+        ]
+    }
+
+    fn close(a: [f32; 3], b: [u8; 3], tol: f32) -> bool {
+        a.iter().zip(b).all(|(x, y)| (x - y as f32).abs() <= tol)
+    }
+
     #[test]
-    fn ray_stats() {
-        let tex = MatTexture::with_defaults(&[], (1.83, 2.74)).unwrap();
-        let r = Renderer::new(tex, CameraModel::default()).unwrap();
-        let ground = r.rays.iter().filter(|r| r.probes > 0).count();
-        let probes: usize = r.rays.iter().map(|r| r.probes as usize).sum();
-        let samples: usize = r
-            .rays
-            .iter()
-            .map(|r| {
-                r.probes as usize
-                    * if r.tri > 0 && (r.tri as u32) < TRI_ONE {
-                        2
-                    } else {
-                        1
-                    }
-            })
-            .sum();
-        let mut hist = [0usize; 6];
-        for ray in &r.rays {
-            if ray.probes > 0 {
-                hist[ray.level as usize] += 1;
+    fn texture_has_mat_floor_and_strokes() {
+        let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
+        assert!(close(tex.sample(0.3, 1.0), DEFAULT_MAT_RGB, 1.0));
+        assert!(close(tex.sample(-0.05, 1.0), DEFAULT_FLOOR_RGB, 1.0));
+        assert!(close(tex.sample(1.0, 2.9), DEFAULT_FLOOR_RGB, 1.0));
+        assert!(close(tex.sample(-3.0, 9.0), DEFAULT_FLOOR_RGB, 1.0));
+        assert!(close(tex.sample(0.85, 1.0), ROAD, 1.0));
+        assert!(close(tex.sample(0.76, 1.0), EDGE, 1.0));
+        assert!(close(tex.sample(1.04, 1.5), EDGE, 1.0));
+        // Dashes of 5 cm every 10 cm from the start at y = 0.1.
+        assert!(close(tex.sample(0.9, 0.125), WHITE, 1.0));
+        assert!(close(tex.sample(0.9, 0.525), WHITE, 1.0));
+        assert!(close(tex.sample(0.9, 0.175), ROAD, 1.0));
+        assert!(close(tex.sample(0.9, 0.575), ROAD, 1.0));
+        // Coarser levels average the same scene.
+        let coarse = tex.levels.last().unwrap();
+        assert_eq!(tex.levels.len(), NUM_LEVELS);
+        assert_eq!(coarse.w * (1 << (NUM_LEVELS - 1)), tex.levels[0].w);
+        assert!(MatTexture::with_defaults(&straight_road(), (0.0, 1.0)).is_err());
+        let bad = PaintStroke {
+            points: vec![(0.0, 0.0), (1.0, 1.0)],
+            width_m: -1.0,
+            rgb: WHITE,
+            dash: None,
+            closed: false,
+        };
+        assert!(MatTexture::with_defaults(&[bad], MAT).is_err());
+    }
+
+    fn px(frame: &[u8], w: u32, u: u32, v: u32) -> [u8; 3] {
+        let i = ((v * w + u) * 3) as usize;
+        [frame[i], frame[i + 1], frame[i + 2]]
+    }
+
+    #[test]
+    fn camera_view_of_a_straight_road() {
+        let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
+        let camera = CameraModel::default();
+        let r = Renderer::new(tex, camera).unwrap();
+        let (w, h) = (camera.width, camera.height);
+        let mut frame = vec![0u8; r.frame_len()];
+        // On the road's centre line, between dashes... the centre column at the bottom
+        // sees the ground 1 cm ahead of the camera.
+        let pose = Pose2::new(0.9, 0.5, FRAC_PI_2);
+        r.render(&pose, &mut frame);
+        // Top row: wall; the wall is brighter at the top than at the horizon.
+        let top = px(&frame, w, 5, 0);
+        let near_horizon = px(&frame, w, 5, camera.horizon_v() as u32 - 1);
+        assert!(top[0] > near_horizon[0]);
+        assert!(
+            top.iter()
+                .zip(DEFAULT_WALL_RGB)
+                .all(|(a, b)| a.abs_diff(b) < 25)
+        );
+        // Bottom corners: road (it is 30 cm wide; the bottom row sees a few cm).
+        assert!(
+            px(&frame, w, 0, h - 1)
+                .iter()
+                .zip(ROAD)
+                .all(|(a, b)| a.abs_diff(b) < 3)
+        );
+        // The view is left-right symmetric apart from the dashes.
+        let mut asym = 0u64;
+        for v in (camera.horizon_v().ceil() as u32 + 2)..h {
+            for u in 0..w / 2 - 8 {
+                let (a, b) = (px(&frame, w, u, v), px(&frame, w, w - 1 - u, v));
+                asym += a
+                    .iter()
+                    .zip(b)
+                    .map(|(x, y)| x.abs_diff(y) as u64)
+                    .sum::<u64>();
             }
         }
-        println!("ground {ground} probes {probes} samples {samples} levels {hist:?}");
+        let mean = asym as f64 / ((h as f64 - camera.horizon_v() as f64) * w as f64 * 1.5);
+        assert!(mean < 1.0, "mean asymmetry {mean}");
+        // Both yellow edges are visible at the row 0.3 m ahead, left and right of the centre.
+        let (_, v) = camera.ground_to_pixel(&pose, 0.9, 0.8).unwrap();
+        let row: Vec<[u8; 3]> = (0..w).map(|u| px(&frame, w, u, v as u32)).collect();
+        let yellow = |p: &[u8; 3]| p[0] > 150 && p[1] > 130 && p[2] < 120;
+        assert!(row[..w as usize / 2].iter().any(yellow));
+        assert!(row[w as usize / 2..].iter().any(yellow));
+        // Turned to face +x the road runs across the view: no yellow in the centre column
+        // far ahead, only mat.
+        r.render(&Pose2::new(0.3, 1.0, 0.0), &mut frame);
+        let p = px(&frame, w, w / 2, h - 10);
+        assert!(
+            p.iter()
+                .zip(DEFAULT_MAT_RGB)
+                .all(|(a, b)| a.abs_diff(b) < 3),
+            "{p:?}"
+        );
+    }
+
+    #[test]
+    fn effects_are_seeded_and_do_what_they_say() {
+        let (w, h) = (8u32, 6u32);
+        let base: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 200) as u8 + 20).collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut same = base.clone();
+        apply_effects(w, h, &RenderEffects::default(), &mut rng, &mut same);
+        assert_eq!(same, base);
+        assert!(RenderEffects::default().is_identity());
+        let bright = RenderEffects {
+            brightness: 1.1,
+            ..RenderEffects::default()
+        };
+        let mut b = base.clone();
+        apply_effects(w, h, &bright, &mut rng, &mut b);
+        assert!(
+            b.iter()
+                .zip(&base)
+                .all(|(x, y)| *x as f32 >= *y as f32 * 1.1 - 0.51)
+        );
+        let noisy = RenderEffects {
+            noise_std: 4.0,
+            ..RenderEffects::default()
+        };
+        let (mut n1, mut n2) = (base.clone(), base.clone());
+        apply_effects(w, h, &noisy, &mut ChaCha8Rng::seed_from_u64(7), &mut n1);
+        apply_effects(w, h, &noisy, &mut ChaCha8Rng::seed_from_u64(7), &mut n2);
+        assert_eq!(n1, n2);
+        assert_ne!(n1, base);
+        // Blur keeps a flat image flat and softens an edge.
+        let blur = RenderEffects {
+            blur: true,
+            ..RenderEffects::default()
+        };
+        let mut flat = vec![100u8; (w * h * 3) as usize];
+        apply_effects(w, h, &blur, &mut rng, &mut flat);
+        assert!(flat.iter().all(|&x| x == 100));
+        let mut edge: Vec<u8> = (0..w * h)
+            .flat_map(|i| if i % w < w / 2 { [0u8; 3] } else { [200u8; 3] })
+            .collect();
+        apply_effects(w, h, &blur, &mut rng, &mut edge);
+        assert_eq!(px(&edge, w, 2, 2), [0; 3]);
+        assert_eq!(px(&edge, w, 3, 2), [50; 3]);
+        assert_eq!(px(&edge, w, 4, 2), [150; 3]);
+        assert_eq!(px(&edge, w, 7, 2), [200; 3]);
+        let e: RenderEffects = serde_json::from_str(r#"{"blur": true}"#).unwrap();
+        assert_eq!(e.brightness, 1.0);
+    }
+
+    #[test]
+    fn top_down_shows_the_mat_and_marks() {
+        let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
+        let trace = vec![
+            Pose2::new(0.9, 0.3, FRAC_PI_2),
+            Pose2::new(0.9, 1.5, FRAC_PI_2),
+        ];
+        let red = [220, 20, 20];
+        let (w, h, rgb) = top_down(&tex, &trace, &[(Pose2::new(0.4, 2.0, 0.0), red)]);
+        assert_eq!(rgb.len(), (w * h * 3) as usize);
+        // About 200 px/m over the mat plus 5 cm each side.
+        assert!((w as f32 - 1.93 * 200.0).abs() <= 3.0, "{w}");
+        assert!((h as f32 - 2.84 * 200.0).abs() <= 3.0, "{h}");
+        // The mark's centre: x = (0.4 + 0.05) * 200, y from the top = (2.74 + 0.05 - 2.0) * 200.
+        let (mu, mv) = (90, 158);
+        let p = px(&rgb, w, mu, mv);
+        assert!(p.iter().zip(red).all(|(a, b)| a.abs_diff(b) < 10), "{p:?}");
+        // The trace (blue) at y = 1.0, x = 0.9.
+        let p = px(&rgb, w, 190, 358);
+        assert!(p[2] > 150 && p[0] < 100, "{p:?}");
+        // A corner: floor.
+        let p = px(&rgb, w, 2, 2);
+        assert!(
+            p.iter()
+                .zip(DEFAULT_FLOOR_RGB)
+                .all(|(a, b)| a.abs_diff(b) < 3)
+        );
+    }
+
+    #[test]
+    fn png_round_trip_and_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        let rgb: Vec<u8> = (0..4 * 3 * 3).map(|i| i as u8 * 5).collect();
+        write_png(&path, 4, 3, &rgb).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (4, 3));
+        assert_eq!(img.into_raw(), rgb);
+        assert!(write_png(&path, 5, 3, &rgb).is_err());
+        assert!(write_png(&dir.path().join("no/such/dir/x.png"), 4, 3, &rgb).is_err());
     }
 }

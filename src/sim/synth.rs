@@ -466,8 +466,9 @@ mod tests {
         assert!(cov224 > 0.5 && cov96 > 0.5 && covcurve > 0.5);
     }
 
-    const PSNR_BOUND_224: f64 = 28.0;
-    const PSNR_BOUND_96: f64 = 28.0;
+    /// Reached: 38.5 dB at 224x224 (39 dB in the curve), 36.7 dB at 96x96.
+    const PSNR_BOUND_224: f64 = 35.0;
+    const PSNR_BOUND_96: f64 = 33.0;
 
     #[test]
     fn synthesis_at_the_recorded_pose_reproduces_the_frame() {
@@ -656,8 +657,10 @@ mod tests {
         );
     }
 
-    /// Timings (release, one core) and example pictures in /tmp; prints only.
+    /// Timings (one core) and example pictures in the temp dir; prints only. Run with
+    /// `cargo test --release --lib sim::synth::tests::timing_and_pictures -- --ignored --nocapture`.
     #[test]
+    #[ignore]
     fn timing_and_pictures() {
         use std::time::Instant;
         for size in [224u32, 96] {
@@ -690,9 +693,26 @@ mod tests {
                 synth.synthesize(&p, &mut out);
             }
             let synth_ms = t.elapsed().as_secs_f64() * 1e3 / iters as f64;
+            let effects = crate::sim::render::RenderEffects {
+                brightness: 0.9,
+                noise_std: 3.0,
+                blur: true,
+            };
+            let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+            let t = Instant::now();
+            for _ in 0..iters {
+                crate::sim::render::apply_effects(size, size, &effects, &mut rng, &mut out);
+            }
+            let fx_ms = t.elapsed().as_secs_f64() * 1e3 / iters as f64;
             println!(
-                "{size}x{size}: render {render_ms:.3} ms/frame, synthesize {synth_ms:.3} ms/frame"
+                "{size}x{size}: render {render_ms:.3} ms/frame, synthesize {synth_ms:.3} ms/frame, \
+                 effects (blur + brightness + noise) {fx_ms:.3} ms/frame"
             );
+            if size == 96 {
+                r.render(&Pose2::new(0.9, 0.9, FRAC_PI_2), &mut out);
+                let path = std::env::temp_dir().join("jetpilot_camera_view_96.png");
+                write_png(&path, size, size, &out).unwrap();
+            }
             if size == 224 {
                 let dir = std::env::temp_dir();
                 r.render(&Pose2::new(0.9, 0.9, FRAC_PI_2), &mut out);

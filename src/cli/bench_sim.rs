@@ -1,0 +1,82 @@
+//! `jetpilot bench --sim`: the simulator's frame costs on one thread (it runs beside the
+//! model, which gets the other core): rendering the mat and replayed-frame synthesis at
+//! 224x224 and 96x96, and the physics + scoring step.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use jetpilot::config::Config;
+use jetpilot::drive::stats::summarise;
+use jetpilot::sim::Pose2;
+use jetpilot::sim::render::{MatTexture, Renderer};
+use jetpilot::sim::setup::{FrameMode, expert_lap_recording};
+use jetpilot::sim::synth::Synthesizer;
+use jetpilot::sim::track::Track;
+
+fn time_ms(iterations: u32, mut f: impl FnMut(u32)) -> (f32, f32) {
+    for i in 0..iterations.min(20) {
+        f(i);
+    }
+    let mut samples: Vec<f32> = (0..iterations)
+        .map(|i| {
+            let t = Instant::now();
+            f(i);
+            t.elapsed().as_secs_f32() * 1000.0
+        })
+        .collect();
+    let s = summarise(&mut samples);
+    (s.p50, s.p90)
+}
+
+pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
+    let track = Track::jetbot_mat();
+    println!("jetpilot bench --sim: one thread, {iterations} iterations, milliseconds");
+    println!("  {:<44} {:>8} {:>8}", "", "median", "p90");
+    for size in [224u32, 96] {
+        let mut cfg = Config::default();
+        cfg.sim.camera.width = size;
+        cfg.sim.camera.height = size;
+        cfg.sim.frames = FrameMode::Replay;
+        let texture = MatTexture::new(
+            &track.paint(),
+            track.mat_size(),
+            cfg.sim.mat_px_per_m,
+            [96, 120, 92],
+            [150, 130, 110],
+        )?;
+        let renderer = Renderer::new(texture, cfg.sim.camera)?;
+        let recording = expert_lap_recording(&cfg, &track)?;
+        let n_rec = recording.frames.len();
+        let synth = Synthesizer::new(recording, track.road_half_width())?;
+        // Poses along the lane, a little off the recorded line, as a learner drives.
+        let poses: Vec<Pose2> = (0..64)
+            .map(|i| {
+                let s = track.length() * i as f32 / 64.0;
+                let mut p =
+                    track.pose_at(s, track.lane_offset() + 0.03 * ((i % 5) as f32 - 2.0) / 2.0);
+                p.heading += 0.05 * ((i % 3) as f32 - 1.0);
+                p
+            })
+            .collect();
+        let mut out = vec![0u8; (size * size * 3) as usize];
+        let (r50, r90) = time_ms(iterations, |i| {
+            renderer.render(&poses[i as usize % 64], &mut out)
+        });
+        println!(
+            "  {:<44} {:>8.3} {:>8.3}",
+            format!("render {size}x{size}"),
+            r50,
+            r90
+        );
+        let (s50, s90) = time_ms(iterations, |i| {
+            synth.synthesize(&poses[i as usize % 64], &mut out);
+        });
+        println!(
+            "  {:<44} {:>8.3} {:>8.3}",
+            format!("replayed-frame synthesis {size}x{size} ({n_rec} rec.)"),
+            s50,
+            s90
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
