@@ -360,6 +360,9 @@ impl Config {
         if let Some(p) = self.sim.track.as_mut() {
             fix(p);
         }
+        if let Some(p) = self.sim.recording.as_mut() {
+            fix(p);
+        }
         fix(&mut self.model.path);
         if let Some(p) = self.runtime.library.as_mut() {
             fix(p);

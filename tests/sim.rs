@@ -219,3 +219,65 @@ fn eval_reports_the_protocol_numbers_as_json() {
     assert!((a - (1.0 - n * 6.0 / 20.0) * 100.0).abs() < 1e-3, "{v}");
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
 }
+
+#[test]
+fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 48, 4);
+    let demos = dir.path().join("demos");
+    let base = format!("[model]\npath = {model:?}\n[sim.camera]\nwidth = 48\nheight = 48\n");
+    let cfg = dir.path().join("rec.toml");
+    std::fs::write(&cfg, &base).unwrap();
+    let jp = || Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+    // The expert's demonstrations, with poses, as a tub.
+    let out = jp()
+        .args(["-q", "sim", "--expert", "--seconds", "8", "--config"])
+        .arg(&cfg)
+        .arg("--record")
+        .arg(&demos)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let tub = jetpilot::dataset::tub::TubReader::open(&demos).unwrap();
+    assert_eq!(tub.len(), 240);
+    // Replayed-frame simulation from that tub.
+    let replay = dir.path().join("replay.toml");
+    std::fs::write(
+        &replay,
+        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\n"),
+    )
+    .unwrap();
+    let out = jp()
+        .args(["-q", "eval", "--expert", "--seconds", "5", "--config"])
+        .arg(&replay)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The real daemon (threads, actuator, watchdog) on the simulated car, in real time.
+    let out = jp()
+        .args(["-q", "sim", "--realtime", "--seconds", "2", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let written: u32 = text
+        .split(" commands written")
+        .next()
+        .and_then(|s| s.rsplit(", ").next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(0);
+    assert!(written >= 30, "{text}");
+}

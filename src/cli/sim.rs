@@ -30,6 +30,10 @@ pub struct SimArgs {
     /// Simulated seconds.
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
+    /// Run under the real daemon (capture and inference threads, actuator, watchdog) in
+    /// real time, instead of the lockstep loop on a simulated clock. Needs a model.
+    #[arg(long, conflicts_with_all = ["expert", "record", "png"])]
+    realtime: bool,
     /// Record the drive as demonstrations: a DonkeyCar tub v2 (frames, wheels, angle/throttle,
     /// poses, rewards, JetBot target labels) in this folder.
     #[arg(long, value_name = "DIR")]
@@ -247,6 +251,9 @@ fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()>
 
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
+    if args.realtime {
+        return realtime(&cfg, args.model.as_deref(), args.seconds);
+    }
     let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
     let mut recorder = match &args.record {
         Some(dir) => {
@@ -318,4 +325,72 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
         write_trace(&rig, &driven.trace, p)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `jetpilot sim --realtime`: the unchanged daemon drives the simulated car.
+fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<ExitCode> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::{Arc, Mutex};
+
+    use jetpilot::clock::{Clock, MonotonicClock};
+    use jetpilot::drive::{self, Parts};
+    use jetpilot::sim::realtime::{SimSource, spawn_physics};
+
+    let rig = setup::build(cfg)?;
+    let policy = jetpilot::drive::setup::load_policy(cfg, model)?;
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let world = Arc::new(Mutex::new(rig.world));
+    let size = (cfg.sim.camera.width, cfg.sim.camera.height);
+    let source = SimSource::new(world.clone(), clock.clone(), size, cfg.sim.control_hz);
+    let stop = Arc::new(AtomicBool::new(false));
+    let physics = spawn_physics(
+        world.clone(),
+        cfg.sim.physics_hz,
+        cfg.sim.control_hz,
+        stop.clone(),
+    )
+    .context("cannot start the physics thread")?;
+    let parts = Parts {
+        source: Box::new(source),
+        policy: Box::new(policy),
+        motors: Box::new(rig.motors),
+        clock,
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    let params = DriveParams::from_config(cfg);
+    let outcome = runtime.block_on(async {
+        drive::run(
+            parts,
+            params,
+            tokio::time::sleep(std::time::Duration::from_secs_f64(seconds)),
+        )
+        .await
+    });
+    stop.store(true, Ordering::Relaxed);
+    let _ = physics.join();
+    let w = world.lock().unwrap_or_else(|p| p.into_inner());
+    let s = &w.stats;
+    println!(
+        "real time: {:.1} s, {} interventions (autonomy {:.1} %), {} rewards, {:.2} laps, {:.1} m",
+        s.time_s,
+        s.interventions,
+        autonomy(s.interventions, s.time_s as f32),
+        s.rewards,
+        w.laps(),
+        s.distance_m
+    );
+    match outcome {
+        Ok((_, report)) => {
+            println!("{report}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Err((e, report)) => {
+            println!("fault: {report}");
+            Err(e.into())
+        }
+    }
 }

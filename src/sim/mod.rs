@@ -20,6 +20,7 @@ pub mod camera;
 pub mod closed_loop;
 pub mod demos;
 pub mod expert;
+pub mod realtime;
 pub mod render;
 pub mod reward;
 pub mod robot;

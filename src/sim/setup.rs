@@ -39,7 +39,11 @@ pub struct SimConfig {
     /// Track file; unset: the built-in JetBot mat (config/tracks/jetbot_mat.toml).
     pub track: Option<PathBuf>,
     pub frames: FrameMode,
-    /// `replay`: spacing of the frames the expert records on its lap, metres.
+    /// `replay`: a tub (DonkeyCar v2) whose records carry `pose/x`, `pose/y`,
+    /// `pose/heading` (real data with poses from a tracker, or `jetpilot sim --record`);
+    /// unset: the expert drives one lap in the rendered world and that is the recording.
+    pub recording: Option<PathBuf>,
+    /// `replay` without `recording`: spacing of the frames the expert records, metres.
     pub record_spacing_m: f32,
     pub control_hz: f32,
     pub physics_hz: f32,
@@ -59,6 +63,7 @@ impl Default for SimConfig {
         Self {
             track: None,
             frames: FrameMode::Render,
+            recording: None,
             record_spacing_m: 0.02,
             control_hz: 30.0,
             physics_hz: 240.0,
@@ -119,10 +124,14 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
     let frames = match sim.frames {
         FrameMode::Render => FrameMaker::Render(renderer(sim, &track)?),
         FrameMode::Replay => {
-            let recording = expert_lap_recording(cfg, &track)?;
+            let recording = match &sim.recording {
+                Some(dir) => tub_recording(dir, &sim.camera)?,
+                None => expert_lap_recording(cfg, &track)?,
+            };
             tracing::info!(
                 frames = recording.frames.len(),
-                "replay: recorded one expert lap to re-project"
+                source = %sim.recording.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "one expert lap".into()),
+                "replay: frames to re-project"
             );
             FrameMaker::Replay(Synthesizer::new(recording, track.road_half_width())?)
         }
@@ -202,6 +211,43 @@ pub fn expert_lap_recording(cfg: &Config, track: &Track) -> Result<Recording, Si
     .map_err(|e| SimError::Invalid(format!("recording the expert lap: {e}")))?;
     Ok(Recording {
         camera: sim.camera,
+        frames,
+    })
+}
+
+/// A recording from a tub whose records carry poses; frames must have the camera's size.
+pub fn tub_recording(dir: &std::path::Path, camera: &CameraModel) -> Result<Recording, SimError> {
+    let file_err = |reason: String| SimError::File {
+        path: dir.display().to_string(),
+        reason,
+    };
+    let tub = crate::dataset::tub::TubReader::open(dir).map_err(|e| file_err(e.to_string()))?;
+    let mut frames = Vec::new();
+    for rec in tub.records() {
+        let Some((x, y, heading)) = rec.pose else {
+            continue;
+        };
+        let (w, h, rgb) = tub.load_rgb(rec).map_err(|e| file_err(e.to_string()))?;
+        if (w, h) != (camera.width, camera.height) {
+            return Err(file_err(format!(
+                "record {}: frame is {w}x{h}, the [sim.camera] is {}x{}",
+                rec.index, camera.width, camera.height
+            )));
+        }
+        frames.push(RecordedFrame {
+            pose: Pose2::new(x, y, heading),
+            width: w,
+            height: h,
+            rgb: Arc::new(rgb),
+        });
+    }
+    if frames.is_empty() {
+        return Err(file_err(
+            "no record carries a pose (pose/x, pose/y, pose/heading)".into(),
+        ));
+    }
+    Ok(Recording {
+        camera: *camera,
         frames,
     })
 }
