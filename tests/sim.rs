@@ -281,3 +281,30 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
         .unwrap_or(0);
     assert!(written >= 30, "{text}");
 }
+
+#[test]
+fn a_car_spinning_on_the_road_is_an_intervention_too() {
+    let cfg = small_config("[sim.stall]\nseconds = 5.0\nmin_progress_m = 0.3\n");
+    let mut rig = setup::build(&cfg).unwrap();
+    // Spin in place on the lane centre, through the motor driver and the virtual HAT.
+    for _ in 0..(31 * 30) {
+        rig.motors.drive(WheelCommand::new(0.4, -0.4)).unwrap();
+        for _ in 0..8 {
+            rig.world.advance(1.0 / 240.0);
+        }
+        rig.world.score();
+    }
+    let w = &rig.world;
+    assert_eq!(
+        w.stats.interventions, 6,
+        "one per 5 s window: {:?}",
+        w.stats.interventions
+    );
+    assert!(
+        w.stats
+            .intervention_poses
+            .iter()
+            .all(|p| w.track.on_road(p.x, p.y)),
+        "all on the road: the stall rule, not the road edge"
+    );
+}

@@ -56,6 +56,8 @@ pub struct SimConfig {
     pub robot: RobotParams,
     pub reward: RewardParams,
     pub expert: ExpertParams,
+    /// No progress along the track for this long is an intervention too.
+    pub stall: super::world::StallRule,
 }
 
 impl Default for SimConfig {
@@ -74,6 +76,7 @@ impl Default for SimConfig {
             robot: RobotParams::default(),
             reward: RewardParams::default(),
             expert: ExpertParams::default(),
+            stall: super::world::StallRule::default(),
         }
     }
 }
@@ -147,7 +150,7 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
     let layout = settings.layout;
     let motors = MotorHat::init(hat.clone(), settings, &mut NoDelay)
         .map_err(|e| SimError::Invalid(format!("virtual motor HAT: {e}")))?;
-    let world = World::new(
+    let mut world = World::new(
         track,
         cfg.sim.robot,
         hat.clone(),
@@ -157,6 +160,7 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
         cfg.sim.reward,
         cfg.sim.seed,
     );
+    world.set_stall_rule(cfg.sim.stall);
     Ok(SimRig {
         world,
         motors,

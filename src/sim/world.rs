@@ -67,6 +67,30 @@ pub struct World {
     pub stats: WorldStats,
     last_s: f32,
     view_valid: bool,
+    stall: StallRule,
+    /// Simulated time and progress at the start of the current stall window.
+    stall_window: (f64, f64),
+}
+
+/// A robot that makes no progress along the track (circling, stuck, or driving the wrong
+/// way) is also taken by the hand and put back: `min_progress_m` of forward progress is
+/// required in every `seconds` window. Without it, the paper's autonomy value rates a car
+/// that spins on the road at 100 %.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StallRule {
+    /// Window length, simulated seconds (0: no stall rule).
+    pub seconds: f32,
+    pub min_progress_m: f32,
+}
+
+impl Default for StallRule {
+    fn default() -> Self {
+        Self {
+            seconds: 10.0,
+            min_progress_m: 0.3,
+        }
+    }
 }
 
 impl World {
@@ -96,6 +120,8 @@ impl World {
             stats: WorldStats::default(),
             last_s: 0.0,
             view_valid: true,
+            stall: StallRule::default(),
+            stall_window: (0.0, 0.0),
         };
         w.reset_at(0.0);
         w
@@ -107,6 +133,10 @@ impl World {
         self.robot.reset(pose);
         self.last_s = self.track.query(pose.x, pose.y).s;
         self.view_valid = true;
+    }
+
+    pub fn set_stall_rule(&mut self, rule: StallRule) {
+        self.stall = rule;
     }
 
     pub fn pose(&self) -> Pose2 {
@@ -148,7 +178,15 @@ impl World {
         self.stats.control_steps += 1;
         let edge = self.track.lane_edge_distance(p.x, p.y);
         let speed = self.robot.speed();
-        if !self.track.on_road(p.x, p.y) || !self.view_valid {
+        let stalled = self.stall.seconds > 0.0
+            && self.stats.time_s - self.stall_window.0 >= self.stall.seconds as f64
+            && {
+                let progress = self.stats.progress_m - self.stall_window.1;
+                self.stall_window = (self.stats.time_s, self.stats.progress_m);
+                progress < self.stall.min_progress_m as f64
+            };
+        if stalled || !self.track.on_road(p.x, p.y) || !self.view_valid {
+            self.stall_window = (self.stats.time_s, self.stats.progress_m);
             self.stats.interventions += 1;
             self.stats.intervention_poses.push(p);
             self.reset_at(q.s);
