@@ -7,6 +7,7 @@
 #   scripts/demo.sh --duration 30
 set -euo pipefail
 cd "$(dirname "$0")/.."
+scripts/install-build-deps.sh
 scripts/install-onnxruntime.sh >/dev/null
 cargo build --release --locked --quiet
 BIN=target/release/jetpilot

@@ -4,6 +4,7 @@
 # with all features, and prints the total. Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+scripts/install-build-deps.sh
 ORT_LIB=$(scripts/install-onnxruntime.sh)
 export ORT_DYLIB_PATH="$ORT_LIB"
 LOG=$(mktemp)
