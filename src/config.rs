@@ -61,6 +61,24 @@ pub struct Config {
 pub enum CameraSource {
     /// A folder of JPEG/PNG images replayed in name order.
     Folder,
+    /// A V4L2 device (USB cameras): `device`, `width`, `height`, `fps`, `format`.
+    V4l2,
+    /// Raw frames of `width` x `height` in `format` read from the standard output of
+    /// `command` (Jetson CSI cameras through GStreamer's nvarguscamerasrc).
+    Pipe,
+}
+
+/// Pixel formats a camera may deliver.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PixelFormat {
+    /// Let the device choose among the ones below (MJPEG first at high resolutions).
+    Auto,
+    Yuyv,
+    Mjpeg,
+    Rgb3,
+    Bgr3,
+    Grey,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,6 +92,16 @@ pub struct CameraConfig {
     /// Start again at the first frame after the last (`folder` source).
     #[serde(rename = "loop")]
     pub repeat: bool,
+    /// `v4l2`: the device node.
+    pub device: PathBuf,
+    /// `v4l2`, `pipe`: frame size asked for (v4l2) or delivered (pipe).
+    pub width: u32,
+    pub height: u32,
+    /// `v4l2`: the format to ask for; `pipe`: the raw format the command writes
+    /// (`rgb3`, `bgr3`, `yuyv` or `grey`; not `mjpeg` or `auto`).
+    pub format: PixelFormat,
+    /// `pipe`: the command line, run with `sh -c`.
+    pub command: String,
 }
 
 impl Default for CameraConfig {
@@ -83,6 +111,11 @@ impl Default for CameraConfig {
             path: PathBuf::from("frames"),
             fps: 30.0,
             repeat: true,
+            device: PathBuf::from("/dev/video0"),
+            width: 640,
+            height: 480,
+            format: PixelFormat::Auto,
+            command: String::new(),
         }
     }
 }
@@ -376,6 +409,20 @@ impl Config {
     pub fn validate(&self, origin: &str) -> Result<()> {
         let mut v = Validator { origin };
         v.range("camera.fps", self.camera.fps, 0.1, 240.0)?;
+        v.range_u("camera.width", self.camera.width as u64, 16, 4096)?;
+        v.range_u("camera.height", self.camera.height as u64, 16, 4096)?;
+        if self.camera.source == CameraSource::Pipe {
+            if self.camera.command.trim().is_empty() {
+                return Err(v.err("camera.command", "\"\"", "a command line that writes raw frames to its standard output"));
+            }
+            if matches!(self.camera.format, PixelFormat::Auto | PixelFormat::Mjpeg) {
+                return Err(v.err(
+                    "camera.format",
+                    &format!("{:?}", self.camera.format).to_lowercase(),
+                    "\"rgb3\", \"bgr3\", \"yuyv\" or \"grey\" for a pipe source",
+                ));
+            }
+        }
         v.range_u("model.input_size", self.model.input_size as u64, 32, 1024)?;
         for (i, s) in self.model.std.iter().enumerate() {
             v.range(&format!("model.std[{i}]"), *s, 1e-3, 1e3)?;

@@ -5,9 +5,13 @@
 //! Sources: a folder of images replayed at a set rate ([`folder::FolderSource`]). V4L2 and
 //! the simulator implement the same trait.
 
+pub mod convert;
 pub mod folder;
 pub mod latest;
+pub mod pipe;
 pub mod synthetic;
+#[cfg(feature = "v4l2")]
+pub mod v4l2;
 
 use std::sync::Arc;
 use std::time::Duration;

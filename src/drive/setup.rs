@@ -24,6 +24,19 @@ pub fn open_source(
             cfg.camera.repeat,
             clock,
         )?)),
+        #[cfg(feature = "v4l2")]
+        CameraSource::V4l2 => Ok(Box::new(crate::camera::v4l2::V4l2Source::open(
+            &cfg.camera,
+            clock,
+        )?)),
+        #[cfg(not(feature = "v4l2"))]
+        CameraSource::V4l2 => Err(CameraError::Other(
+            "camera.source = \"v4l2\" needs a build with the `v4l2` feature".into(),
+        )),
+        CameraSource::Pipe => Ok(Box::new(crate::camera::pipe::PipeSource::open(
+            &cfg.camera,
+            clock,
+        )?)),
     }
 }
 
