@@ -241,6 +241,13 @@ impl Actuator<'_> {
             interval
         });
         stats_tick.tick().await;
+        // systemd (Type=notify): ready now; then a watchdog ping from this loop every
+        // 500 ms, so a stuck actuator gets the service restarted (and ExecStopPost stops
+        // the motors). Without NOTIFY_SOCKET these are no-ops.
+        let mut keepalive = tokio::time::interval(Duration::from_millis(500));
+        if let Err(e) = sd_notify::notify(&[sd_notify::NotifyState::Ready]) {
+            tracing::warn!(error = %e, "systemd notify failed");
+        }
         let outcome = loop {
             // The watchdog's deadline, as a tokio instant (the clocks run at the same rate).
             let until_deadline = self
@@ -280,8 +287,12 @@ impl Actuator<'_> {
                     }
                 }
                 _ = stats_tick.tick(), if !interval.is_zero() => self.log_window(),
+                _ = keepalive.tick() => {
+                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                }
             }
         };
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
         if let Err(e) = self.motors.stop() {
             tracing::error!(error = %e, "could not stop the motors");
             if outcome.is_ok() {
