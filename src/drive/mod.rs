@@ -18,6 +18,7 @@
 //! inference and capture threads watch, then waits (bounded) for them to finish. The
 //! motor output also stops the motors when dropped, which covers a panic in the actuator.
 
+pub mod recorder;
 pub mod setup;
 pub mod stages;
 pub mod stats;

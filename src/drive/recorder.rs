@@ -1,0 +1,264 @@
+//! Recording demonstrations while driving, off the control path: the actuator hands each
+//! step to [`Recorder::offer`], which never blocks (a bounded queue; a full queue drops the
+//! step and counts it), and a writer thread JPEG-encodes the frame and appends it to an
+//! [`EpisodeSink`] (a DonkeyCar tub). Disk use is bounded by `max_records`; a write error
+//! (a full disk) stops recording cleanly: everything already written stays readable.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use image::ExtendedColorType;
+use image::codecs::jpeg::JpegEncoder;
+
+use crate::control::WheelCommand;
+use crate::dataset::DatasetError;
+use crate::dataset::tub::{DriveMode, TubRecord, TubWriter};
+
+/// One step to record.
+#[derive(Debug, Clone)]
+pub struct RecordStep {
+    pub time_ms: u64,
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Arc<Vec<u8>>,
+    /// The command that went to the motors.
+    pub wheels: WheelCommand,
+    pub mode: DriveMode,
+    /// The autopilot's command for this frame, when it ran.
+    pub pilot: Option<WheelCommand>,
+}
+
+/// Where recorded steps go (a tub; tests inject failures).
+pub trait EpisodeSink: Send {
+    fn append(&mut self, record: &TubRecord, jpeg: &[u8]) -> Result<u64, DatasetError>;
+    fn sync(&mut self) -> Result<(), DatasetError>;
+}
+
+impl EpisodeSink for TubWriter {
+    fn append(&mut self, record: &TubRecord, jpeg: &[u8]) -> Result<u64, DatasetError> {
+        TubWriter::append(self, record, jpeg)
+    }
+    fn sync(&mut self) -> Result<(), DatasetError> {
+        self.flush_and_sync()
+    }
+}
+
+/// Counters shared with the writer thread.
+#[derive(Debug, Default)]
+pub struct RecorderCounts {
+    pub written: AtomicU64,
+    pub dropped: AtomicU64,
+    /// Set when recording stopped by itself (limit reached or write error).
+    pub stopped: AtomicBool,
+}
+
+pub struct Recorder {
+    tx: Option<SyncSender<RecordStep>>,
+    counts: Arc<RecorderCounts>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// `(angle, throttle)` from wheel commands, as DonkeyCar stores them.
+fn angle_throttle(w: WheelCommand) -> (f32, f32) {
+    ((w.left - w.right) / 2.0, (w.left + w.right) / 2.0)
+}
+
+impl Recorder {
+    /// Starts the writer thread; at most `max_records` steps are written.
+    pub fn start(sink: Box<dyn EpisodeSink>, max_records: u64) -> std::io::Result<Self> {
+        let (tx, rx) = sync_channel::<RecordStep>(32);
+        let counts = Arc::new(RecorderCounts::default());
+        let c = counts.clone();
+        let thread = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || write_loop(sink, rx, c, max_records))?;
+        Ok(Self {
+            tx: Some(tx),
+            counts,
+            thread: Some(thread),
+        })
+    }
+
+    /// Queues a step without blocking; false when it was dropped or recording has stopped.
+    pub fn offer(&self, step: RecordStep) -> bool {
+        if self.counts.stopped.load(Ordering::Relaxed) {
+            return false;
+        }
+        match self.tx.as_ref().map(|tx| tx.try_send(step)) {
+            Some(Ok(())) => true,
+            Some(Err(TrySendError::Full(_))) | Some(Err(TrySendError::Disconnected(_))) | None => {
+                self.counts.dropped.fetch_add(1, Ordering::Relaxed);
+                false
+            }
+        }
+    }
+
+    pub fn counts(&self) -> &RecorderCounts {
+        &self.counts
+    }
+
+    /// Writes what is queued, syncs, and ends the thread. Returns the steps written.
+    pub fn finish(mut self) -> u64 {
+        self.close();
+        self.counts.written.load(Ordering::Relaxed)
+    }
+
+    fn close(&mut self) {
+        self.tx.take();
+        if let Some(t) = self.thread.take()
+            && t.join().is_err()
+        {
+            tracing::error!("the recorder thread panicked; records before it are kept");
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+fn write_loop(
+    mut sink: Box<dyn EpisodeSink>,
+    rx: Receiver<RecordStep>,
+    counts: Arc<RecorderCounts>,
+    max_records: u64,
+) {
+    let mut jpeg = Vec::new();
+    for step in rx.iter() {
+        if counts.stopped.load(Ordering::Relaxed) {
+            continue; // drain
+        }
+        if counts.written.load(Ordering::Relaxed) >= max_records {
+            tracing::warn!(max_records, "recording limit reached: recording stopped");
+            counts.stopped.store(true, Ordering::Relaxed);
+            continue;
+        }
+        jpeg.clear();
+        if let Err(e) = JpegEncoder::new_with_quality(&mut jpeg, 90).encode(
+            &step.rgb,
+            step.width,
+            step.height,
+            ExtendedColorType::Rgb8,
+        ) {
+            tracing::warn!(error = %e, "cannot encode a frame; step skipped");
+            continue;
+        }
+        let (angle, throttle) = angle_throttle(step.wheels);
+        let mut rec = TubRecord::new(step.time_ms, angle, throttle, step.mode);
+        rec.wheels = Some((step.wheels.left, step.wheels.right));
+        if let Some(p) = step.pilot {
+            let (a, t) = angle_throttle(p);
+            rec.pilot_angle = Some(a);
+            rec.pilot_throttle = Some(t);
+        }
+        match sink.append(&rec, &jpeg) {
+            Ok(_) => {
+                let n = counts.written.fetch_add(1, Ordering::Relaxed) + 1;
+                if n % 100 == 0
+                    && let Err(e) = sink.sync()
+                {
+                    tracing::warn!(error = %e, "sync failed");
+                }
+            }
+            Err(e) => {
+                tracing::error!(error = %e, "recording stopped (disk full?); what was written is kept");
+                counts.stopped.store(true, Ordering::Relaxed);
+            }
+        }
+    }
+    if let Err(e) = sink.sync() {
+        tracing::warn!(error = %e, "final sync of the recording failed");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::tub::{TubInputs, TubReader};
+
+    fn step(i: u64) -> RecordStep {
+        RecordStep {
+            time_ms: i * 33,
+            width: 8,
+            height: 8,
+            rgb: Arc::new(vec![(i * 10) as u8; 8 * 8 * 3]),
+            wheels: WheelCommand::new(0.4, 0.2),
+            mode: DriveMode::User,
+            pilot: None,
+        }
+    }
+
+    #[test]
+    fn records_reach_the_tub_with_angle_and_throttle() {
+        let dir = tempfile::tempdir().unwrap();
+        let tub = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 1000).unwrap();
+        for i in 0..20 {
+            while !rec.offer(step(i)) {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+        assert_eq!(rec.finish(), 20);
+        let r = TubReader::open(dir.path()).unwrap();
+        let all: Vec<_> = r.records().collect();
+        assert_eq!(all.len(), 20);
+        // (0.4 - 0.2) / 2 = 0.1 right, (0.4 + 0.2) / 2 = 0.3 forward
+        assert!((all[0].user_angle - 0.1).abs() < 1e-6);
+        assert!((all[0].user_throttle - 0.3).abs() < 1e-6);
+        assert_eq!(all[0].wheels, Some((0.4, 0.2)));
+    }
+
+    /// A sink that fails like a full disk after `ok` records.
+    struct FullDisk {
+        inner: TubWriter,
+        ok: u64,
+    }
+    impl EpisodeSink for FullDisk {
+        fn append(&mut self, r: &TubRecord, jpeg: &[u8]) -> Result<u64, DatasetError> {
+            if self.inner.len() as u64 >= self.ok {
+                return Err(DatasetError::Io {
+                    path: "images/".into(),
+                    source: std::io::Error::from_raw_os_error(28), // ENOSPC
+                });
+            }
+            self.inner.append(r, jpeg)
+        }
+        fn sync(&mut self) -> Result<(), DatasetError> {
+            self.inner.flush_and_sync()
+        }
+    }
+
+    #[test]
+    fn a_full_disk_stops_recording_and_keeps_what_was_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let inner = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(FullDisk { inner, ok: 7 }), 1000).unwrap();
+        let mut offered = 0;
+        for i in 0..50 {
+            if rec.offer(step(i)) {
+                offered += 1;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert!(offered >= 7);
+        assert!(rec.counts().stopped.load(Ordering::Relaxed));
+        assert_eq!(rec.finish(), 7);
+        assert_eq!(TubReader::open(dir.path()).unwrap().records().count(), 7);
+    }
+
+    #[test]
+    fn the_record_limit_bounds_disk_use() {
+        let dir = tempfile::tempdir().unwrap();
+        let tub = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 5).unwrap();
+        for i in 0..30 {
+            rec.offer(step(i));
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert_eq!(rec.finish(), 5);
+    }
+}
