@@ -20,10 +20,14 @@ use crate::control::{SteeringGains, SteeringLaw, WheelCommand};
 use crate::policy::{ModelContract, Policy, Preprocessor};
 
 /// A wheel command with where it came from and what it cost.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Command {
     pub seq: u64,
     pub captured_at: Duration,
+    /// The frame it was computed from (shared, not copied), for recording.
+    pub frame: Arc<Vec<u8>>,
+    pub width: u32,
+    pub height: u32,
     pub outputs: [f32; 2],
     pub wheels: WheelCommand,
     pub preprocess: Duration,
@@ -131,6 +135,9 @@ impl FrameProcessor {
         Ok(Command {
             seq: frame.seq,
             captured_at: frame.captured_at,
+            frame: frame.rgb.clone(),
+            width: frame.width,
+            height: frame.height,
             outputs,
             wheels,
             preprocess: t1.saturating_sub(t0),

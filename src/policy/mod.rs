@@ -6,6 +6,7 @@
 //! - [`runtime`] and [`ort_policy`]: ONNX Runtime, loaded from a shared library at run time.
 
 pub mod contract;
+pub mod null;
 pub mod onnx;
 pub mod ort_policy;
 pub mod preprocess;
