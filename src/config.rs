@@ -54,6 +54,38 @@ pub struct Config {
     pub log: LogConfig,
     /// The simulator (`jetpilot sim`, `jetpilot eval`).
     pub sim: crate::sim::setup::SimConfig,
+    /// A gamepad for teleoperation, takeovers and the mode buttons; absent: no gamepad,
+    /// the autopilot drives from the start.
+    pub gamepad: Option<crate::hw::gamepad::GamepadConfig>,
+    pub record: RecordConfig,
+    pub interventions: InterventionsConfig,
+}
+
+/// `[record]`: demonstrations written while driving (DonkeyCar tub v2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordConfig {
+    /// The tub folder (a new session is appended to an existing tub).
+    pub path: PathBuf,
+    /// Stop recording after this many records (bounds disk use: ~10 kB each at 224x224).
+    pub max_records: u64,
+}
+
+impl Default for RecordConfig {
+    fn default() -> Self {
+        Self {
+            path: PathBuf::from("tub"),
+            max_records: 100_000,
+        }
+    }
+}
+
+/// `[interventions]`: the log of human takeovers (the paper's measure).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InterventionsConfig {
+    /// Append-only JSON lines; unset: interventions are counted but not written.
+    pub log_path: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -403,6 +435,10 @@ impl Config {
         if let Some(p) = self.motors.log_path.as_mut() {
             fix(p);
         }
+        fix(&mut self.record.path);
+        if let Some(p) = self.interventions.log_path.as_mut() {
+            fix(p);
+        }
     }
 
     /// Checks every numeric key against its allowed range.
@@ -413,7 +449,11 @@ impl Config {
         v.range_u("camera.height", self.camera.height as u64, 16, 4096)?;
         if self.camera.source == CameraSource::Pipe {
             if self.camera.command.trim().is_empty() {
-                return Err(v.err("camera.command", "\"\"", "a command line that writes raw frames to its standard output"));
+                return Err(v.err(
+                    "camera.command",
+                    "\"\"",
+                    "a command line that writes raw frames to its standard output",
+                ));
             }
             if matches!(self.camera.format, PixelFormat::Auto | PixelFormat::Mjpeg) {
                 return Err(v.err(

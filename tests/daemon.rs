@@ -82,6 +82,7 @@ fn run_logged(
         policy,
         motors: Box::new(motors),
         clock,
+        teleop: None,
     };
     let out = block_on(async {
         drive::run(parts, params(gains()), tokio::time::sleep(shutdown_after)).await
@@ -299,6 +300,7 @@ fn an_i2c_error_stops_the_motors() {
         })),
         motors: Box::new(hat) as Box<dyn MotorOutput>,
         clock,
+        teleop: None,
     };
     let outcome = block_on(async {
         drive::run(
@@ -321,4 +323,182 @@ fn an_i2c_error_stops_the_motors() {
     assert_eq!(regs, vec![0x28, 0x2C, 0x30, 0x34, 0x38, 0x3C]);
     assert!(tail.iter().all(|b| b[1..] == [0x00, 0x10]));
     assert!(writes.iter().rev().take(6).all(|(_, _, failed)| !failed));
+}
+
+/// Fails (recoverably, like an unplugged USB camera) after `fail_at` frames, `failures`
+/// times, then delivers frames again.
+struct FlakyCamera {
+    inner: ScriptedSource,
+    fail_at: u64,
+    failures: u32,
+}
+
+impl jetpilot::camera::FrameSource for FlakyCamera {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<jetpilot::camera::Frame>, jetpilot::camera::CameraError> {
+        if self.inner_seq() == self.fail_at && self.failures > 0 {
+            self.failures -= 1;
+            std::thread::sleep(Duration::from_millis(100));
+            return Err(jetpilot::camera::CameraError::Other(
+                "/dev/video0: No such device (unplugged)".into(),
+            ));
+        }
+        self.inner.next_frame()
+    }
+    fn describe(&self) -> String {
+        "flaky camera".into()
+    }
+    fn recoverable(&self) -> bool {
+        true
+    }
+}
+
+impl FlakyCamera {
+    fn inner_seq(&self) -> u64 {
+        self.inner.produced()
+    }
+}
+
+#[test]
+fn an_unplugged_camera_stops_the_motors_then_driving_resumes() {
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let cam = FlakyCamera {
+        inner: ScriptedSource::new(30, Duration::from_millis(10), false, clock.clone()),
+        fail_at: 5,
+        failures: 3,
+    };
+    let release = cam.inner.release.clone();
+    let (outcome, record) = run_logged(
+        Box::new(cam),
+        Box::new(ScriptedPolicy::new(|_| Step::Out([0.1, 0.2]))),
+        clock,
+        Duration::from_millis(1200),
+    );
+    release.store(true, Ordering::Relaxed);
+    let (end, report) = outcome.expect("a recovering camera is not fatal");
+    assert_eq!(end, RunEnd::Shutdown);
+    assert_eq!(report.source_errors, 3, "{report}");
+    let events = record.lock().unwrap().clone();
+    // Drives, then a stop when the camera fails, then drives again once it is back.
+    let first_stop = events
+        .iter()
+        .position(|(_, e)| *e == MotorEvent::Stop)
+        .expect("a stop");
+    assert_eq!(
+        events[..first_stop]
+            .iter()
+            .filter(|(_, e)| matches!(e, MotorEvent::Drive(_)))
+            .count(),
+        5
+    );
+    assert!(
+        events[first_stop..]
+            .iter()
+            .any(|(_, e)| matches!(e, MotorEvent::Drive(_))),
+        "driving resumed"
+    );
+    assert_eq!(drives(&record).len(), 30);
+}
+
+#[test]
+fn a_gamepad_takeover_is_an_intervention_and_logged() {
+    use evdev::{AbsoluteAxisCode, KeyCode};
+    use jetpilot::drive::interventions::{InterventionLog, SessionInfo, read};
+    use jetpilot::drive::modes::{ModeParams, Modes};
+    use jetpilot::drive::teleop::TeleopParts;
+    use jetpilot::hw::gamepad::{GamepadConfig, GamepadMap, GamepadState, InputEvent};
+
+    let dir = tempfile::tempdir().unwrap();
+    let log_path = dir.path().join("interventions.jsonl");
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let motors = LogMotors::new(clock.clone());
+    let record = motors.record();
+    let cfg = GamepadConfig::default(); // xbox profile, tank drive, heartbeat 500 ms
+    let (tx, events) = tokio::sync::mpsc::channel(64);
+    let teleop = TeleopParts {
+        events,
+        pad: GamepadState::new(GamepadMap::from_config(&cfg).unwrap()),
+        modes: Modes::new(ModeParams::from_gamepad(&cfg), gains()),
+        autopilot_available: true,
+        log: Some(
+            InterventionLog::open(
+                &log_path,
+                SessionInfo::new("test.onnx".into(), "fnv1a64:0".into()),
+            )
+            .unwrap(),
+        ),
+        model_hash: "fnv1a64:0".into(),
+        recorder: None,
+        recording: false,
+    };
+    let source = ScriptedSource::new(1000, Duration::from_millis(20), false, clock.clone());
+    let release = source.release.clone();
+    let parts = Parts {
+        source: Box::new(source),
+        policy: Box::new(ScriptedPolicy::new(|_| Step::Out([0.0, 0.5]))),
+        motors: Box::new(motors),
+        clock,
+        teleop: Some(teleop),
+    };
+    let press = |code| InputEvent::Button {
+        code,
+        pressed: true,
+    };
+    let lift = |code| InputEvent::Button {
+        code,
+        pressed: false,
+    };
+    let stick = |value| InputEvent::Axis {
+        code: AbsoluteAxisCode::ABS_Y,
+        value,
+        min: -32768,
+        max: 32767,
+    };
+    let outcome = block_on(async move {
+        let run = tokio::spawn(drive::run(parts, params(gains()), async {
+            tokio::time::sleep(Duration::from_millis(1500)).await
+        }));
+        let pause = |ms| tokio::time::sleep(Duration::from_millis(ms));
+        // Autopilot on (A), then the human pushes the left stick forward: takeover.
+        for e in [
+            stick(0),
+            press(KeyCode::BTN_SOUTH),
+            lift(KeyCode::BTN_SOUTH),
+        ] {
+            tx.send(e).await.unwrap();
+        }
+        pause(300).await;
+        tx.send(stick(-32768)).await.unwrap();
+        pause(300).await;
+        // Stick back to centre, autopilot on again: the intervention ends.
+        for e in [
+            stick(0),
+            press(KeyCode::BTN_SOUTH),
+            lift(KeyCode::BTN_SOUTH),
+        ] {
+            tx.send(e).await.unwrap();
+        }
+        let out = run.await.unwrap();
+        drop(tx);
+        out
+    });
+    release.store(true, Ordering::Relaxed);
+    let (_, report) = outcome.expect("clean run");
+    assert!(report.commands_written > 10);
+    // The takeover drove the left wheel at the full manual scale (tank mode, scale 0.5).
+    let manual = drives(&record)
+        .iter()
+        .any(|(_, c)| (c.left - 0.5).abs() < 1e-3 && c.right.abs() < 1e-3);
+    assert!(manual, "{:?}", drives(&record));
+    // The autopilot's command (speed 0.3 straight) before and after.
+    assert!(
+        drives(&record)
+            .iter()
+            .any(|(_, c)| (c.left - 0.3).abs() < 1e-3 && (c.right - 0.3).abs() < 1e-3)
+    );
+    let summary = read(&log_path).unwrap();
+    assert_eq!(summary.interventions, 1, "{summary:?}");
+    let d = summary.sessions[0].clone();
+    assert!(format!("{d:?}").contains("stick"), "{d:?}");
 }

@@ -25,11 +25,14 @@ pub enum Wait {
     Frame(Frame),
     Timeout,
     Closed(SourceEnd),
+    /// The source failed but goes on (it is recovering); reported once per error.
+    Error(String),
 }
 
 #[derive(Debug, Default)]
 struct State {
     frame: Option<Frame>,
+    error: Option<String>,
     closed: Option<SourceEnd>,
     produced: u64,
     skipped: u64,
@@ -89,13 +92,28 @@ impl LatestFrame {
         self.ready.notify_all();
     }
 
+    /// Reports a transient source error (the source keeps going); any unread frame is
+    /// dropped, since it predates the failure.
+    pub fn put_error(&self, message: String) {
+        let mut s = self.lock();
+        s.frame = None;
+        s.error = Some(message);
+        drop(s);
+        self.ready.notify_all();
+    }
+
     /// Takes the newest unread frame, waiting up to `timeout` for one.
     pub fn wait(&self, timeout: Duration) -> Wait {
         let s = self.lock();
         let (mut s, _) = self
             .ready
-            .wait_timeout_while(s, timeout, |s| s.frame.is_none() && s.closed.is_none())
+            .wait_timeout_while(s, timeout, |s| {
+                s.frame.is_none() && s.closed.is_none() && s.error.is_none()
+            })
             .unwrap_or_else(|p| p.into_inner());
+        if let Some(e) = s.error.take() {
+            return Wait::Error(e);
+        }
         if let Some(f) = s.frame.take() {
             return Wait::Frame(f);
         }

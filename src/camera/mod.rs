@@ -58,4 +58,10 @@ pub trait FrameSource: Send {
     fn next_frame(&mut self) -> Result<Option<Frame>>;
     /// A short description for logs, e.g. `folder samples/ (48 frames, 15 fps)`.
     fn describe(&self) -> String;
+    /// True when an error from `next_frame` is transient: the source recovers by itself
+    /// (a V4L2 camera reopening after an unplug), so the daemon stops the motors and keeps
+    /// asking for frames instead of ending.
+    fn recoverable(&self) -> bool {
+        false
+    }
 }

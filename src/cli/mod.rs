@@ -3,6 +3,8 @@
 
 mod bench;
 mod bench_sim;
+mod camera;
+mod interventions;
 mod model;
 mod run;
 mod samples;
@@ -37,12 +39,22 @@ pub struct Cli {
 enum Command {
     /// Drive: capture frames, run the model, steer, write the motors (the daemon).
     Run(run::RunArgs),
+    /// Drive with the gamepad and record demonstrations (DonkeyCar tub v2) for imitation
+    /// learning; the record button pauses and resumes.
+    Record(run::RecordArgs),
     /// Release both motors and exit (for systemd's ExecStopPost, or by hand after a crash).
     Stop {
         /// Config file naming the motor HAT (layout, bus, address).
         #[arg(short, long, value_name = "FILE")]
         config: PathBuf,
     },
+    /// Find cameras (`camera list`) and take a test frame from the configured source
+    /// (`camera snap`).
+    #[command(subcommand)]
+    Camera(camera::CameraCommand),
+    /// Summarise an interventions log: count, test time, autonomy (the paper's formula).
+    #[command(subcommand)]
+    Interventions(interventions::InterventionsCommand),
     /// Create or inspect ONNX policy models.
     #[command(subcommand)]
     Model(model::ModelCommand),
@@ -66,8 +78,11 @@ pub fn main() -> ExitCode {
     install_panic_hook();
     let result = match cli.command {
         Command::Run(args) => run::run(args),
+        Command::Record(args) => run::record(args),
         Command::Stop { config } => run::stop(&config),
         Command::Model(cmd) => model::main(cmd),
+        Command::Camera(cmd) => camera::main(cmd),
+        Command::Interventions(cmd) => interventions::main(cmd),
         Command::Bench(args) => bench::main(args),
         Command::Samples(args) => samples::main(args),
         Command::Sim(args) => sim::sim(args),

@@ -28,6 +28,19 @@ pub struct RunArgs {
     dry_run: bool,
 }
 
+#[derive(Debug, clap::Args)]
+pub struct RecordArgs {
+    /// Config file; it needs a `[gamepad]` section, and `[record] path` says where the tub goes.
+    #[arg(short, long, value_name = "FILE")]
+    config: PathBuf,
+    /// A model for the autopilot button (default: none; the autopilot is then unavailable).
+    #[arg(short, long, value_name = "FILE")]
+    model: Option<PathBuf>,
+    /// Stop after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long, value_name = "SECS")]
+    duration: Option<f64>,
+}
+
 pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
@@ -37,7 +50,113 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
         println!("{}", pipeline(&cfg, &policy, source.describe()));
         return Ok(ExitCode::SUCCESS);
     }
-    let motors = setup::open_motors(&cfg, clock.clone())?;
+    let model = args.model.clone().unwrap_or_else(|| cfg.model.path.clone());
+    drive_with(
+        &cfg,
+        Box::new(policy),
+        Some(&model),
+        source,
+        clock,
+        args.duration,
+        false,
+    )
+}
+
+/// `jetpilot record`: drive with the gamepad and write demonstrations (tub v2).
+pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    if cfg.gamepad.is_none() {
+        anyhow::bail!(
+            "config {}: recording needs a gamepad: add a [gamepad] section (profile = \"xbox\", \"f710\" or \"generic\")",
+            args.config.display()
+        );
+    }
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    let policy: Box<dyn Policy + Send> = match &args.model {
+        Some(m) => Box::new(setup::load_policy(&cfg, Some(m))?),
+        None => Box::new(jetpilot::policy::null::NullPolicy::new(
+            cfg.model.fallback_contract(),
+        )),
+    };
+    let source = setup::open_source(&cfg, clock.clone())?;
+    drive_with(
+        &cfg,
+        policy,
+        args.model.as_deref(),
+        source,
+        clock,
+        args.duration,
+        true,
+    )
+}
+
+/// The gamepad side of a run, when `[gamepad]` is configured.
+fn teleop_parts(
+    cfg: &Config,
+    model: Option<&Path>,
+    recording: bool,
+    cancel: &tokio_util::sync::CancellationToken,
+) -> anyhow::Result<Option<jetpilot::drive::teleop::TeleopParts>> {
+    use jetpilot::dataset::tub::{TubInputs, TubWriter};
+    use jetpilot::drive::interventions::{InterventionLog, SessionInfo, fnv1a64_file};
+    use jetpilot::drive::modes::{ModeParams, Modes};
+    use jetpilot::drive::recorder::Recorder;
+    use jetpilot::drive::teleop::{TeleopParts, spawn_reader};
+    use jetpilot::hw::gamepad::{GamepadMap, GamepadState};
+
+    let Some(g) = cfg.gamepad.clone() else {
+        return Ok(None);
+    };
+    let (tx, events) = tokio::sync::mpsc::channel(256);
+    spawn_reader(g.clone(), tx, cancel.clone()).context("cannot start the gamepad thread")?;
+    let model_hash = match model {
+        Some(m) => fnv1a64_file(m)?,
+        None => "none".to_string(),
+    };
+    let log = match &cfg.interventions.log_path {
+        Some(p) => {
+            let info = match model {
+                Some(m) => SessionInfo::for_model(m)?,
+                None => SessionInfo::new("none".into(), model_hash.clone()),
+            };
+            Some(InterventionLog::open(p, info)?)
+        }
+        None => None,
+    };
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0);
+    let tub = TubWriter::create(&cfg.record.path, &TubInputs::ALL, now)
+        .with_context(|| format!("recording to {}", cfg.record.path.display()))?;
+    let recorder = Recorder::start(Box::new(tub), cfg.record.max_records)
+        .context("cannot start the recorder thread")?;
+    Ok(Some(TeleopParts {
+        events,
+        pad: GamepadState::new(GamepadMap::from_config(&g)?),
+        modes: Modes::new(ModeParams::from_gamepad(&g), cfg.control.gains()),
+        autopilot_available: model.is_some(),
+        log,
+        model_hash,
+        recorder: Some(recorder),
+        recording,
+    }))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn drive_with(
+    cfg: &Config,
+    policy: Box<dyn Policy + Send>,
+    model: Option<&Path>,
+    source: Box<dyn jetpilot::camera::FrameSource>,
+    clock: Arc<dyn Clock>,
+    duration: Option<f64>,
+    recording: bool,
+) -> anyhow::Result<ExitCode> {
+    let cancel = tokio_util::sync::CancellationToken::new();
+    let _stop_reader = cancel.clone().drop_guard();
+    let teleop = teleop_parts(cfg, model, recording, &cancel)?;
+    let motors = setup::open_motors(cfg, clock.clone())?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -45,12 +164,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
         .context("cannot start the async runtime")?;
     let parts = Parts {
         source,
-        policy: Box::new(policy),
+        policy,
         motors,
         clock,
+        teleop,
     };
-    let params = DriveParams::from_config(&cfg);
-    let duration = args.duration.map(Duration::from_secs_f64);
+    let params = DriveParams::from_config(cfg);
+    let duration = duration.map(Duration::from_secs_f64);
     let outcome = runtime.block_on(drive::run(parts, params, shutdown_signal(duration)));
     match outcome {
         Ok((end, report)) => {

@@ -355,6 +355,7 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
         policy: Box::new(policy),
         motors: Box::new(rig.motors),
         clock,
+        teleop: None,
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -18,10 +18,13 @@
 //! inference and capture threads watch, then waits (bounded) for them to finish. The
 //! motor output also stops the motors when dropped, which covers a panic in the actuator.
 
+pub mod interventions;
+pub mod modes;
 pub mod recorder;
 pub mod setup;
 pub mod stages;
 pub mod stats;
+pub mod teleop;
 pub mod watchdog;
 
 use std::future::Future;
@@ -73,6 +76,9 @@ pub struct Parts {
     pub policy: Box<dyn Policy>,
     pub motors: Box<dyn MotorOutput>,
     pub clock: Arc<dyn Clock>,
+    /// Gamepad, modes, interventions log and recording; `None`: the autopilot drives from
+    /// the start and nothing else can take over (the demo, the simulator).
+    pub teleop: Option<teleop::TeleopParts>,
 }
 
 /// Daemon settings, from the config's `[control]`, `[safety]` and `[log]`.
@@ -114,6 +120,8 @@ pub struct RunReport {
     /// Commands dropped because their frame was older than `max_frame_age`.
     pub stale_dropped: u64,
     pub watchdog_stops: u64,
+    /// Transient frame-source failures (each stopped the motors until frames returned).
+    pub source_errors: u64,
     pub elapsed: Duration,
     pub latency: StageSummary,
 }
@@ -147,7 +155,17 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         policy,
         mut motors,
         clock,
+        teleop,
     } = parts;
+    let (gains_tx, gains_rx) = tokio::sync::watch::channel(params.gains);
+    let (events, teleop) = match teleop {
+        Some(mut t) => {
+            let (_, dummy) = mpsc::channel(1);
+            let events = std::mem::replace(&mut t.events, dummy);
+            (Some(events), Some(teleop::Teleop::new(t, gains_tx)))
+        }
+        None => (None, None),
+    };
     let started = clock.now();
     let cancel = CancellationToken::new();
     let slot = Arc::new(LatestFrame::new());
@@ -175,6 +193,7 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         let (slot, cancel) = (slot.clone(), cancel.clone());
         let p = InferParams {
             gains: params.gains,
+            gains_updates: Some(gains_rx),
             max_abs_output: params.max_abs_output,
             clock: clock.clone(),
         };
@@ -188,8 +207,13 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         stats: StageStats::default(),
         watchdog: Watchdog::new(params.watchdog),
         report: RunReport::default(),
+        teleop,
+        motors_stopped: true,
     };
-    let result = actuator.run(rx, shutdown).await;
+    let result = actuator.run(rx, events, shutdown).await;
+    if let Some(t) = actuator.teleop.take() {
+        t.finish(clock.now().saturating_sub(started));
+    }
     let mut report = std::mem::take(&mut actuator.report);
     report.latency = actuator.stats.overall();
 
@@ -226,14 +250,29 @@ struct Actuator<'a> {
     stats: StageStats,
     watchdog: Watchdog,
     report: RunReport,
+    teleop: Option<teleop::Teleop>,
+    /// The last thing written was a stop (so a Stop from the mode machine is not repeated).
+    motors_stopped: bool,
+}
+
+/// The next gamepad event, or never when there is no gamepad.
+async fn next_event(
+    events: &mut Option<mpsc::Receiver<crate::hw::gamepad::InputEvent>>,
+) -> Option<crate::hw::gamepad::InputEvent> {
+    match events {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
 }
 
 impl Actuator<'_> {
     async fn run(
         &mut self,
         mut rx: mpsc::Receiver<StageMsg>,
+        mut events: Option<mpsc::Receiver<crate::hw::gamepad::InputEvent>>,
         shutdown: impl Future<Output = ()>,
     ) -> Result<RunEnd, DriveError> {
+        let mut manual_tick = tokio::time::interval(Duration::from_millis(50));
         tokio::pin!(shutdown);
         let interval = self.params.stats_interval;
         let mut stats_tick = tokio::time::interval(if interval.is_zero() {
@@ -268,6 +307,13 @@ impl Actuator<'_> {
                             break Err(e);
                         }
                     }
+                    Some(StageMsg::SourceError(msg)) => {
+                        self.report.source_errors += 1;
+                        tracing::warn!(error = %msg, "frame source failed: motors stopped until frames return");
+                        if let Err(e) = self.apply(modes::Drive::Stop) {
+                            break Err(e);
+                        }
+                    }
                     Some(StageMsg::SourceFinished) => {
                         tracing::info!("frame source finished");
                         break Ok(RunEnd::SourceFinished);
@@ -290,6 +336,31 @@ impl Actuator<'_> {
                 _ = stats_tick.tick(), if !interval.is_zero() => self.log_window(),
                 _ = keepalive.tick() => {
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                }
+                ev = next_event(&mut events) => {
+                    let now = self.clock.now();
+                    let d = match (ev, self.teleop.as_mut()) {
+                        (Some(ev), Some(t)) => t.on_event(&ev, now),
+                        (None, Some(t)) => {
+                            events = None; // the reader is gone for good
+                            t.on_event(&crate::hw::gamepad::InputEvent::Disconnected, now)
+                        }
+                        (_, None) => continue,
+                    };
+                    if let Err(e) = self.apply(d) {
+                        break Err(e);
+                    }
+                }
+                _ = manual_tick.tick(), if self.teleop.is_some() => {
+                    let now = self.clock.now();
+                    if let Some(t) = self.teleop.as_mut()
+                        && t.mode() != modes::Mode::Auto
+                    {
+                        let d = t.tick(now, None);
+                        if let Err(e) = self.apply(d) {
+                            break Err(e);
+                        }
+                    }
                 }
             }
         };
@@ -321,7 +392,19 @@ impl Actuator<'_> {
             return Ok(());
         }
         let t0 = self.clock.now();
-        self.motors.drive(cmd.wheels)?;
+        let sent = match self.teleop.as_mut() {
+            Some(t) => {
+                let d = t.tick(t0, Some(cmd.wheels));
+                t.record(&cmd, teleop::drive_wheels(d));
+                if matches!(d, modes::Drive::Stop) {
+                    return self.apply(d);
+                }
+                teleop::drive_wheels(d)
+            }
+            None => cmd.wheels,
+        };
+        self.motors.drive(sent)?;
+        self.motors_stopped = false;
         let t1 = self.clock.now();
         self.watchdog.feed(t1);
         self.report.commands_written += 1;
@@ -341,6 +424,27 @@ impl Actuator<'_> {
             age_ms = age.as_secs_f32() * 1000.0,
             "command"
         );
+        Ok(())
+    }
+
+    /// Writes what the mode machine decided: a command (fresh: feeds the watchdog) or a
+    /// stop (once).
+    fn apply(&mut self, d: modes::Drive) -> Result<(), DriveError> {
+        match d {
+            modes::Drive::Command(w) => {
+                self.motors.drive(w)?;
+                self.motors_stopped = false;
+                self.watchdog.feed(self.clock.now());
+                self.report.commands_written += 1;
+            }
+            modes::Drive::Stop => {
+                if !self.motors_stopped {
+                    self.motors.stop()?;
+                    self.motors_stopped = true;
+                }
+                self.watchdog.disarm();
+            }
+        }
         Ok(())
     }
 

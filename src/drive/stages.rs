@@ -41,6 +41,8 @@ pub enum StageMsg {
     Command(Command),
     /// The frame source ended normally (a replay without `loop`).
     SourceFinished,
+    /// The frame source failed and is recovering: stop the motors, keep running.
+    SourceError(String),
     Fault(DriveError),
 }
 
@@ -58,6 +60,10 @@ pub fn capture(
                 slot.close(SourceEnd::Finished);
                 break;
             }
+            Err(e) if source.recoverable() => {
+                tracing::warn!(error = %e, "frame source failed; it is recovering");
+                slot.put_error(e.to_string());
+            }
             Err(e) => {
                 slot.close(SourceEnd::Failed(e.to_string()));
                 break;
@@ -70,6 +76,8 @@ pub fn capture(
 /// What the inference stage needs besides its channels.
 pub struct InferParams {
     pub gains: SteeringGains,
+    /// Gain changes from the gamepad buttons, applied before the next frame.
+    pub gains_updates: Option<tokio::sync::watch::Receiver<SteeringGains>>,
     pub max_abs_output: f32,
     pub clock: Arc<dyn Clock>,
 }
@@ -158,8 +166,14 @@ pub fn infer(
     let contract = policy.contract().clone();
     let mut processor = FrameProcessor::new(&contract, params.gains, params.max_abs_output);
     let clock = params.clock;
+    let mut gains_updates = params.gains_updates;
     let send = |msg| tx.blocking_send(msg).is_ok();
     while !cancel.is_cancelled() {
+        if let Some(rx) = gains_updates.as_mut()
+            && rx.has_changed().unwrap_or(false)
+        {
+            processor.law_mut().set_gains(*rx.borrow_and_update());
+        }
         let frame = match slot.wait(Duration::from_millis(50)) {
             Wait::Timeout => continue,
             Wait::Closed(SourceEnd::Finished) => {
@@ -169,6 +183,12 @@ pub fn infer(
             Wait::Closed(SourceEnd::Failed(msg)) => {
                 send(StageMsg::Fault(DriveError::Camera(msg)));
                 return;
+            }
+            Wait::Error(msg) => {
+                if !send(StageMsg::SourceError(msg)) {
+                    return;
+                }
+                continue;
             }
             Wait::Frame(f) => f,
         };

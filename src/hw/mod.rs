@@ -12,9 +12,12 @@
 //!   address jumpers and the `motors.address` key.
 
 pub mod bus;
+pub mod buzzer;
+pub mod gamepad;
 pub mod layout;
 pub mod motor_hat;
 pub mod motors;
+pub mod oled;
 
 pub use layout::{HatLayout, MotorPins};
 pub use motor_hat::MotorHat;

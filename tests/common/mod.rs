@@ -113,6 +113,13 @@ impl ScriptedSource {
     }
 }
 
+impl ScriptedSource {
+    /// Frames delivered so far.
+    pub fn produced(&self) -> u64 {
+        self.seq
+    }
+}
+
 impl FrameSource for ScriptedSource {
     fn next_frame(&mut self) -> Result<Option<Frame>, CameraError> {
         if self.seq >= self.frames {
