@@ -59,6 +59,28 @@ pub struct Config {
     pub gamepad: Option<crate::hw::gamepad::GamepadConfig>,
     pub record: RecordConfig,
     pub interventions: InterventionsConfig,
+    pub oled: OledConfig,
+    pub buzzer: crate::hw::buzzer::BuzzerConfig,
+}
+
+/// `[oled]`: the SSD1306 128x32 status display (JetBot, Waveshare, Yahboom boards).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OledConfig {
+    /// Off by default; an enabled display that does not answer is a warning, not an error.
+    pub enabled: bool,
+    pub i2c_bus: u8,
+    pub address: u8,
+}
+
+impl Default for OledConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            i2c_bus: 1,
+            address: 0x3C,
+        }
+    }
 }
 
 /// `[record]`: demonstrations written while driving (DonkeyCar tub v2).

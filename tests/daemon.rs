@@ -83,6 +83,7 @@ fn run_logged(
         motors: Box::new(motors),
         clock,
         teleop: None,
+        status: None,
     };
     let out = block_on(async {
         drive::run(parts, params(gains()), tokio::time::sleep(shutdown_after)).await
@@ -301,6 +302,7 @@ fn an_i2c_error_stops_the_motors() {
         motors: Box::new(hat) as Box<dyn MotorOutput>,
         clock,
         teleop: None,
+        status: None,
     };
     let outcome = block_on(async {
         drive::run(
@@ -440,6 +442,7 @@ fn a_gamepad_takeover_is_an_intervention_and_logged() {
         motors: Box::new(motors),
         clock,
         teleop: Some(teleop),
+        status: None,
     };
     let press = |code| InputEvent::Button {
         code,

@@ -6,6 +6,7 @@ mod bench_sim;
 mod camera;
 mod interventions;
 mod model;
+mod panel;
 mod run;
 mod samples;
 mod sim;

@@ -157,6 +157,17 @@ fn drive_with(
     let _stop_reader = cancel.clone().drop_guard();
     let teleop = teleop_parts(cfg, model, recording, &cancel)?;
     let motors = setup::open_motors(cfg, clock.clone())?;
+    let (status_tx, status_rx) = tokio::sync::watch::channel(Default::default());
+    let panel = if cfg.oled.enabled || cfg.buzzer.enabled {
+        Some(super::panel::spawn(
+            cfg,
+            clock.clone(),
+            status_rx,
+            cancel.clone(),
+        )?)
+    } else {
+        None
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -168,10 +179,15 @@ fn drive_with(
         motors,
         clock,
         teleop,
+        status: Some(status_tx),
     };
     let params = DriveParams::from_config(cfg);
     let duration = duration.map(Duration::from_secs_f64);
     let outcome = runtime.block_on(drive::run(parts, params, shutdown_signal(duration)));
+    cancel.cancel();
+    if let Some(p) = panel {
+        let _ = p.join();
+    }
     match outcome {
         Ok((end, report)) => {
             let why = match end {

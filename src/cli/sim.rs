@@ -356,6 +356,7 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
         motors: Box::new(rig.motors),
         clock,
         teleop: None,
+        status: None,
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -79,6 +79,21 @@ pub struct Parts {
     /// Gamepad, modes, interventions log and recording; `None`: the autopilot drives from
     /// the start and nothing else can take over (the demo, the simulator).
     pub teleop: Option<teleop::TeleopParts>,
+    /// Where the daemon publishes its [`DaemonStatus`] twice a second (the OLED panel).
+    pub status: Option<tokio::sync::watch::Sender<DaemonStatus>>,
+}
+
+/// What the daemon is doing, for a status display.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DaemonStatus {
+    /// `manual`, `auto` or `stopped`.
+    pub mode: String,
+    pub commands_written: u64,
+    /// The last command sent to the motors.
+    pub last: crate::control::WheelCommand,
+    pub interventions: u64,
+    /// Seconds since the run started.
+    pub elapsed_s: f32,
 }
 
 /// Daemon settings, from the config's `[control]`, `[safety]` and `[log]`.
@@ -156,6 +171,7 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         mut motors,
         clock,
         teleop,
+        status,
     } = parts;
     let (gains_tx, gains_rx) = tokio::sync::watch::channel(params.gains);
     let (events, teleop) = match teleop {
@@ -209,6 +225,9 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         report: RunReport::default(),
         teleop,
         motors_stopped: true,
+        status,
+        started,
+        last_sent: crate::control::WheelCommand::STOP,
     };
     let result = actuator.run(rx, events, shutdown).await;
     if let Some(t) = actuator.teleop.take() {
@@ -253,6 +272,9 @@ struct Actuator<'a> {
     teleop: Option<teleop::Teleop>,
     /// The last thing written was a stop (so a Stop from the mode machine is not repeated).
     motors_stopped: bool,
+    status: Option<tokio::sync::watch::Sender<DaemonStatus>>,
+    started: Duration,
+    last_sent: crate::control::WheelCommand,
 }
 
 /// The next gamepad event, or never when there is no gamepad.
@@ -336,6 +358,7 @@ impl Actuator<'_> {
                 _ = stats_tick.tick(), if !interval.is_zero() => self.log_window(),
                 _ = keepalive.tick() => {
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                    self.publish_status();
                 }
                 ev = next_event(&mut events) => {
                     let now = self.clock.now();
@@ -405,6 +428,7 @@ impl Actuator<'_> {
         };
         self.motors.drive(sent)?;
         self.motors_stopped = false;
+        self.last_sent = sent;
         let t1 = self.clock.now();
         self.watchdog.feed(t1);
         self.report.commands_written += 1;
@@ -434,6 +458,7 @@ impl Actuator<'_> {
             modes::Drive::Command(w) => {
                 self.motors.drive(w)?;
                 self.motors_stopped = false;
+                self.last_sent = w;
                 self.watchdog.feed(self.clock.now());
                 self.report.commands_written += 1;
             }
@@ -441,11 +466,32 @@ impl Actuator<'_> {
                 if !self.motors_stopped {
                     self.motors.stop()?;
                     self.motors_stopped = true;
+                    self.last_sent = crate::control::WheelCommand::STOP;
                 }
                 self.watchdog.disarm();
             }
         }
         Ok(())
+    }
+
+    fn publish_status(&self) {
+        if let Some(tx) = &self.status {
+            let (mode, interventions) = match &self.teleop {
+                Some(t) => (t.mode().as_str().to_string(), t.interventions()),
+                None => ("auto".to_string(), 0),
+            };
+            tx.send_replace(DaemonStatus {
+                mode,
+                commands_written: self.report.commands_written,
+                last: if self.motors_stopped {
+                    crate::control::WheelCommand::STOP
+                } else {
+                    self.last_sent
+                },
+                interventions,
+                elapsed_s: self.clock.now().saturating_sub(self.started).as_secs_f32(),
+            });
+        }
     }
 
     fn log_window(&mut self) {
