@@ -11,7 +11,7 @@
 #   scripts/build-aarch64.sh              # build + glibc check + unit tests under qemu
 #   SKIP_TESTS=1 scripts/build-aarch64.sh # build + glibc check only
 #
-# Output: target/aarch64-unknown-linux-gnu/release/jetpilot
+# Output: target/aarch64-unknown-linux-gnu/release/jetpilot (under $CARGO_TARGET_DIR if set)
 #
 # `cargo zigbuild --target aarch64-unknown-linux-gnu.2.27` links against zig's glibc 2.27
 # stubs, so the binary cannot pick up a symbol version newer than JetPack 4.6 has; the
@@ -75,7 +75,7 @@ log "cargo zigbuild --release --target $TARGET.$GLIBC_FLOOR"
 t0=$SECONDS
 env "$BINDGEN_ENV" cargo zigbuild --release --locked --target "$TARGET.$GLIBC_FLOOR"
 build_s=$((SECONDS - t0))
-BIN=target/$TARGET/release/jetpilot
+BIN=${CARGO_TARGET_DIR:-target}/$TARGET/release/jetpilot
 file "$BIN" 2>/dev/null || true
 
 # --- glibc floor -----------------------------------------------------------------------
@@ -93,6 +93,12 @@ done
 if [ ${#newer[@]} -gt 0 ]; then
   echo "build-aarch64: FAIL: $BIN needs glibc ${newer[*]} > $GLIBC_FLOOR (JetPack 4.6); symbols:" >&2
   for v in "${newer[@]}"; do aarch64-linux-gnu-objdump -T "$BIN" | grep -F "GLIBC_$v " >&2 || true; done
+  exit 1
+fi
+
+# The binary starts (dynamic loader, glibc, relocations) under qemu with an arm64 libc.
+if ! qemu-aarch64 -L /usr/aarch64-linux-gnu "$BIN" --version; then
+  echo "build-aarch64: FAIL: $BIN does not start under qemu-aarch64" >&2
   exit 1
 fi
 

@@ -91,6 +91,9 @@ pub struct RecordConfig {
     pub path: PathBuf,
     /// Stop recording after this many records (bounds disk use: ~10 kB each at 224x224).
     pub max_records: u64,
+    /// Also write JetBot's road-following folder here (`xy_XXX_YYY_<uuid>.jpg`); see
+    /// `drive::recorder` for how a gamepad command becomes a target point.
+    pub jetbot_xy: Option<PathBuf>,
 }
 
 impl Default for RecordConfig {
@@ -98,6 +101,7 @@ impl Default for RecordConfig {
         Self {
             path: PathBuf::from("tub"),
             max_records: 100_000,
+            jetbot_xy: None,
         }
     }
 }
@@ -458,6 +462,9 @@ impl Config {
             fix(p);
         }
         fix(&mut self.record.path);
+        if let Some(p) = self.record.jetbot_xy.as_mut() {
+            fix(p);
+        }
         if let Some(p) = self.interventions.log_path.as_mut() {
             fix(p);
         }

@@ -129,8 +129,12 @@ fn teleop_parts(
         .unwrap_or(0.0);
     let tub = TubWriter::create(&cfg.record.path, &TubInputs::ALL, now)
         .with_context(|| format!("recording to {}", cfg.record.path.display()))?;
-    let recorder = Recorder::start(Box::new(tub), cfg.record.max_records)
-        .context("cannot start the recorder thread")?;
+    let recorder = Recorder::start(
+        Box::new(tub),
+        cfg.record.max_records,
+        cfg.record.jetbot_xy.clone(),
+    )
+    .context("cannot start the recorder thread")?;
     Ok(Some(TeleopParts {
         events,
         pad: GamepadState::new(GamepadMap::from_config(&g)?),

@@ -1,8 +1,23 @@
 //! Recording demonstrations while driving, off the control path: the actuator hands each
 //! step to [`Recorder::offer`], which never blocks (a bounded queue; a full queue drops the
 //! step and counts it), and a writer thread JPEG-encodes the frame and appends it to an
-//! [`EpisodeSink`] (a DonkeyCar tub). Disk use is bounded by `max_records`; a write error
-//! (a full disk) stops recording cleanly: everything already written stays readable.
+//! [`EpisodeSink`] (a DonkeyCar tub), and optionally to JetBot's road-following folder.
+//! Disk use is bounded by `max_records`; a write error (a full disk) stops recording
+//! cleanly: everything already written stays readable.
+//!
+//! # From a gamepad command to JetBot's target point
+//! JetBot's xy folder labels each frame with the point the robot should head for. A human
+//! driving with sticks gives wheel commands instead, so the label is the target point that
+//! makes JetBot's own law reproduce the command's steering, at a fixed look-ahead on the
+//! middle row of the image:
+//!
+//! ```text
+//! steering = (left - right) / 2            (what the law's clamp(speed +- steering) undoes)
+//! angle    = steering / steering_gain      (the law: steering = angle * steering_gain, kd = 0)
+//! y = 0    -> (0.5 - y) / 2 = 0.25         (look-ahead row: the middle of the image)
+//! x = clamp(tan(angle) * 0.25, -1, 1)      (so that atan2(x, 0.25) = angle)
+//! px = 112 + 112 x,  py = 112              (for a 224x224 frame)
+//! ```
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -28,6 +43,19 @@ pub struct RecordStep {
     pub mode: DriveMode,
     /// The autopilot's command for this frame, when it ran.
     pub pilot: Option<WheelCommand>,
+    /// The steering gain in force, to turn `wheels` into a JetBot target point.
+    pub steering_gain: f32,
+}
+
+/// JetBot's `(x, y)` label (each -1..1) for a wheel command; see the module doc.
+pub fn target_for_wheels(w: WheelCommand, steering_gain: f32) -> (f32, f32) {
+    let steering = (w.left - w.right) / 2.0;
+    let angle = if steering_gain > 1e-6 {
+        (steering / steering_gain).clamp(-1.5, 1.5)
+    } else {
+        0.0
+    };
+    ((angle.tan() * 0.25).clamp(-1.0, 1.0), 0.0)
 }
 
 /// Where recorded steps go (a tub; tests inject failures).
@@ -67,13 +95,21 @@ fn angle_throttle(w: WheelCommand) -> (f32, f32) {
 
 impl Recorder {
     /// Starts the writer thread; at most `max_records` steps are written.
-    pub fn start(sink: Box<dyn EpisodeSink>, max_records: u64) -> std::io::Result<Self> {
+    /// `xy_dir`: also write JetBot's road-following folder (`xy_XXX_YYY_<uuid>.jpg`).
+    pub fn start(
+        sink: Box<dyn EpisodeSink>,
+        max_records: u64,
+        xy_dir: Option<std::path::PathBuf>,
+    ) -> std::io::Result<Self> {
+        if let Some(d) = &xy_dir {
+            std::fs::create_dir_all(d)?;
+        }
         let (tx, rx) = sync_channel::<RecordStep>(32);
         let counts = Arc::new(RecorderCounts::default());
         let c = counts.clone();
         let thread = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || write_loop(sink, rx, c, max_records))?;
+            .spawn(move || write_loop(sink, rx, c, max_records, xy_dir))?;
         Ok(Self {
             tx: Some(tx),
             counts,
@@ -126,7 +162,10 @@ fn write_loop(
     rx: Receiver<RecordStep>,
     counts: Arc<RecorderCounts>,
     max_records: u64,
+    xy_dir: Option<std::path::PathBuf>,
 ) {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x6a65_7462_6f74);
     let mut jpeg = Vec::new();
     for step in rx.iter() {
         if counts.stopped.load(Ordering::Relaxed) {
@@ -154,6 +193,18 @@ fn write_loop(
             let (a, t) = angle_throttle(p);
             rec.pilot_angle = Some(a);
             rec.pilot_throttle = Some(t);
+        }
+        let (tx, ty) = target_for_wheels(step.wheels, step.steering_gain);
+        rec.target = Some((tx, ty));
+        if let Some(dir) = &xy_dir {
+            let (px, py) =
+                crate::dataset::jetbot_xy::pixel_for_label(tx, ty, step.width, step.height);
+            let uuid = crate::dataset::jetbot_xy::uuid_from_rng(&mut rng);
+            if let Err(e) = crate::dataset::jetbot_xy::write_sample(dir, px, py, &jpeg, &uuid) {
+                tracing::error!(error = %e, "recording stopped (disk full?); what was written is kept");
+                counts.stopped.store(true, Ordering::Relaxed);
+                continue;
+            }
         }
         match sink.append(&rec, &jpeg) {
             Ok(_) => {
@@ -189,14 +240,49 @@ mod tests {
             wheels: WheelCommand::new(0.4, 0.2),
             mode: DriveMode::User,
             pilot: None,
+            steering_gain: 0.2,
         }
+    }
+
+    #[test]
+    fn a_wheel_command_maps_to_the_target_point_that_reproduces_it() {
+        // Straight: the middle of the image.
+        assert_eq!(
+            target_for_wheels(WheelCommand::new(0.3, 0.3), 0.2),
+            (0.0, 0.0)
+        );
+        // left 0.4, right 0.2: steering 0.1, angle 0.1 / 0.2 = 0.5 rad, x = tan(0.5) / 4.
+        let (x, y) = target_for_wheels(WheelCommand::new(0.4, 0.2), 0.2);
+        assert!((x - 0.5f32.tan() * 0.25).abs() < 1e-6 && y == 0.0);
+        // JetBot's law on that label gives the steering back.
+        let angle = x.atan2((0.5 - y) / 2.0);
+        assert!((angle * 0.2 - 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_jetbot_folder_is_written_too() {
+        let dir = tempfile::tempdir().unwrap();
+        let xy = dir.path().join("xy");
+        let tub = TubWriter::create(&dir.path().join("tub"), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 100, Some(xy.clone())).unwrap();
+        for i in 0..5 {
+            while !rec.offer(step(i)) {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+        assert_eq!(rec.finish(), 5);
+        let folder = crate::dataset::jetbot_xy::XyFolder::open(&xy).unwrap();
+        assert_eq!(folder.samples().len(), 5);
+        // left 0.4, right 0.2 at steering_gain 0.2 on an 8x8 frame: px = round(4 + 4 x).
+        let s = &folder.samples()[0];
+        assert_eq!((s.px, s.py), (5, 4));
     }
 
     #[test]
     fn records_reach_the_tub_with_angle_and_throttle() {
         let dir = tempfile::tempdir().unwrap();
         let tub = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
-        let rec = Recorder::start(Box::new(tub), 1000).unwrap();
+        let rec = Recorder::start(Box::new(tub), 1000, None).unwrap();
         for i in 0..20 {
             while !rec.offer(step(i)) {
                 std::thread::sleep(std::time::Duration::from_millis(1));
@@ -236,7 +322,7 @@ mod tests {
     fn a_full_disk_stops_recording_and_keeps_what_was_written() {
         let dir = tempfile::tempdir().unwrap();
         let inner = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
-        let rec = Recorder::start(Box::new(FullDisk { inner, ok: 7 }), 1000).unwrap();
+        let rec = Recorder::start(Box::new(FullDisk { inner, ok: 7 }), 1000, None).unwrap();
         let mut offered = 0;
         for i in 0..50 {
             if rec.offer(step(i)) {
@@ -254,7 +340,7 @@ mod tests {
     fn the_record_limit_bounds_disk_use() {
         let dir = tempfile::tempdir().unwrap();
         let tub = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
-        let rec = Recorder::start(Box::new(tub), 5).unwrap();
+        let rec = Recorder::start(Box::new(tub), 5, None).unwrap();
         for i in 0..30 {
             rec.offer(step(i));
             std::thread::sleep(std::time::Duration::from_millis(1));

@@ -120,6 +120,7 @@ impl Teleop {
                 wheels: sent,
                 mode,
                 pilot: Some(cmd.wheels),
+                steering_gain: self.modes.gains().steering_gain,
             });
         }
     }
