@@ -24,8 +24,10 @@ TARGET=aarch64-unknown-linux-gnu
 GLIBC_FLOOR=2.27
 ZIG_VERSION=0.15.2
 VENV=.cache/zig-venv
-# Lib unit tests that cannot run under qemu-user, skipped by exact name (see the note in
-# the report of the last change to this list). Empty: all of them run.
+ZIGBUILD_VERSION=0.24.1
+# Lib unit tests that cannot run under qemu-user, skipped by exact name, each with its
+# reason. Empty: every lib unit test runs there (qemu-user 7.2: 221 passed, the 2 tests
+# marked #[ignore] in the source are skipped on every platform).
 QEMU_SKIP=()
 
 log() { echo "== build-aarch64: $*" >&2; }
@@ -59,8 +61,8 @@ fi
 # cargo-zigbuild runs `python3 -m ziglang` when no `zig` is on PATH: the venv's python3.
 export PATH="$PWD/$VENV/bin:$PATH"
 if ! cargo zigbuild --help >/dev/null 2>&1; then
-  log "cargo install cargo-zigbuild --locked"
-  cargo install cargo-zigbuild --locked --quiet
+  log "cargo install cargo-zigbuild --version $ZIGBUILD_VERSION --locked"
+  cargo install cargo-zigbuild --version "$ZIGBUILD_VERSION" --locked --quiet
 fi
 
 # bindgen (v4l2-sys-mit) must parse the aarch64 kernel/libc headers, not the host's:

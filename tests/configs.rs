@@ -37,3 +37,16 @@ fn demo_runs_on_bundled_frames_with_virtual_motors() {
     let frames = jetpilot::camera::folder::list_images(&cfg.camera.path).unwrap();
     assert!(frames.len() >= 16, "{} frames", frames.len());
 }
+
+#[test]
+fn robot_configs_read_the_csi_camera_and_keep_state_in_var_lib() {
+    for name in ["jetbot.toml", "waveshare.toml", "yahboom.toml"] {
+        let cfg = load(name);
+        assert_eq!(cfg.camera.source, jetpilot::config::CameraSource::Pipe, "{name}");
+        assert!(cfg.camera.command.contains("nvarguscamerasrc"), "{name}");
+        assert!(cfg.record.path.starts_with("/var/lib/jetpilot"), "{name}");
+        assert!(cfg.model.path.starts_with("/var/lib/jetpilot"), "{name}");
+        assert!(cfg.oled.enabled, "{name}");
+    }
+    assert!(load("yahboom.toml").buzzer.enabled);
+}
