@@ -62,6 +62,8 @@ pub fn target_for_wheels(w: WheelCommand, steering_gain: f32) -> (f32, f32) {
 pub trait EpisodeSink: Send {
     fn append(&mut self, record: &TubRecord, jpeg: &[u8]) -> Result<u64, DatasetError>;
     fn sync(&mut self) -> Result<(), DatasetError>;
+    /// Soft-deletes the last `n` records (DonkeyCar's "erase last 100" button).
+    fn delete_last(&mut self, n: usize) -> Result<usize, DatasetError>;
 }
 
 impl EpisodeSink for TubWriter {
@@ -71,6 +73,15 @@ impl EpisodeSink for TubWriter {
     fn sync(&mut self) -> Result<(), DatasetError> {
         self.flush_and_sync()
     }
+    fn delete_last(&mut self, n: usize) -> Result<usize, DatasetError> {
+        TubWriter::delete_last(self, n)
+    }
+}
+
+/// What the writer thread is asked to do.
+enum Msg {
+    Step(RecordStep),
+    EraseLast(usize),
 }
 
 /// Counters shared with the writer thread.
@@ -83,7 +94,7 @@ pub struct RecorderCounts {
 }
 
 pub struct Recorder {
-    tx: Option<SyncSender<RecordStep>>,
+    tx: Option<SyncSender<Msg>>,
     counts: Arc<RecorderCounts>,
     thread: Option<JoinHandle<()>>,
 }
@@ -104,7 +115,7 @@ impl Recorder {
         if let Some(d) = &xy_dir {
             std::fs::create_dir_all(d)?;
         }
-        let (tx, rx) = sync_channel::<RecordStep>(32);
+        let (tx, rx) = sync_channel::<Msg>(32);
         let counts = Arc::new(RecorderCounts::default());
         let c = counts.clone();
         let thread = std::thread::Builder::new()
@@ -122,13 +133,21 @@ impl Recorder {
         if self.counts.stopped.load(Ordering::Relaxed) {
             return false;
         }
-        match self.tx.as_ref().map(|tx| tx.try_send(step)) {
+        match self.tx.as_ref().map(|tx| tx.try_send(Msg::Step(step))) {
             Some(Ok(())) => true,
             Some(Err(TrySendError::Full(_))) | Some(Err(TrySendError::Disconnected(_))) | None => {
                 self.counts.dropped.fetch_add(1, Ordering::Relaxed);
                 false
             }
         }
+    }
+
+    /// Asks the writer to soft-delete the last `n` records (after what is queued).
+    /// False when the queue is full; the button can be pressed again.
+    pub fn erase_last(&self, n: usize) -> bool {
+        self.tx
+            .as_ref()
+            .is_some_and(|tx| tx.try_send(Msg::EraseLast(n)).is_ok())
     }
 
     pub fn counts(&self) -> &RecorderCounts {
@@ -159,7 +178,7 @@ impl Drop for Recorder {
 
 fn write_loop(
     mut sink: Box<dyn EpisodeSink>,
-    rx: Receiver<RecordStep>,
+    rx: Receiver<Msg>,
     counts: Arc<RecorderCounts>,
     max_records: u64,
     xy_dir: Option<std::path::PathBuf>,
@@ -167,7 +186,17 @@ fn write_loop(
     use rand::SeedableRng;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x6a65_7462_6f74);
     let mut jpeg = Vec::new();
-    for step in rx.iter() {
+    for msg in rx.iter() {
+        let step = match msg {
+            Msg::Step(step) => step,
+            Msg::EraseLast(n) => {
+                match sink.delete_last(n) {
+                    Ok(k) => tracing::info!(erased = k, "erased the last records"),
+                    Err(e) => tracing::error!(error = %e, "cannot erase records"),
+                }
+                continue;
+            }
+        };
         if counts.stopped.load(Ordering::Relaxed) {
             continue; // drain
         }
@@ -316,6 +345,29 @@ mod tests {
         fn sync(&mut self) -> Result<(), DatasetError> {
             self.inner.flush_and_sync()
         }
+        fn delete_last(&mut self, n: usize) -> Result<usize, DatasetError> {
+            self.inner.delete_last(n)
+        }
+    }
+
+    #[test]
+    fn the_erase_button_soft_deletes_the_last_records() {
+        let dir = tempfile::tempdir().unwrap();
+        let tub = TubWriter::create(dir.path(), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 1000, None).unwrap();
+        for i in 0..12 {
+            while !rec.offer(step(i)) {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+        assert!(rec.erase_last(5));
+        assert_eq!(rec.finish(), 12);
+        let r = TubReader::open(dir.path()).unwrap();
+        assert_eq!(
+            r.records().count(),
+            7,
+            "deletes are soft: 12 written, 5 hidden"
+        );
     }
 
     #[test]
