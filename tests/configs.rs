@@ -42,7 +42,11 @@ fn demo_runs_on_bundled_frames_with_virtual_motors() {
 fn robot_configs_read_the_csi_camera_and_keep_state_in_var_lib() {
     for name in ["jetbot.toml", "waveshare.toml", "yahboom.toml"] {
         let cfg = load(name);
-        assert_eq!(cfg.camera.source, jetpilot::config::CameraSource::Pipe, "{name}");
+        assert_eq!(
+            cfg.camera.source,
+            jetpilot::config::CameraSource::Pipe,
+            "{name}"
+        );
         assert!(cfg.camera.command.contains("nvarguscamerasrc"), "{name}");
         assert!(cfg.record.path.starts_with("/var/lib/jetpilot"), "{name}");
         assert!(cfg.model.path.starts_with("/var/lib/jetpilot"), "{name}");
