@@ -99,8 +99,9 @@ pub struct Recorder {
     thread: Option<JoinHandle<()>>,
 }
 
-/// `(angle, throttle)` from wheel commands, as DonkeyCar stores them.
-fn angle_throttle(w: WheelCommand) -> (f32, f32) {
+/// `(angle, throttle)` from wheel commands, as DonkeyCar stores them:
+/// `angle = (left - right) / 2` (positive turns right), `throttle = (left + right) / 2`.
+pub fn angle_throttle(w: WheelCommand) -> (f32, f32) {
     ((w.left - w.right) / 2.0, (w.left + w.right) / 2.0)
 }
 

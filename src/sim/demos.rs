@@ -3,8 +3,8 @@
 //! (frame, sim time, mode, the wheels sent, angle/throttle, pose, reward, JetBot target
 //! label), and optionally JetBot's road-following xy folder.
 //!
-//! Angle and throttle from tank-style wheel commands: `throttle = (left + right) / 2`,
-//! `angle = (left - right) / 2` (positive turns right, as DonkeyCar's angle).
+//! Angle and throttle from tank-style wheel commands as the daemon's recorder stores them
+//! ([`angle_throttle`]).
 
 use std::path::Path;
 
@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use super::closed_loop::StepRecord;
 use super::expert::target_label;
 use crate::dataset::tub::{DriveMode, TubInputs, TubRecord, TubWriter};
+use crate::drive::recorder::angle_throttle;
 use crate::dataset::{DatasetError, jetbot_xy};
 use crate::sim::camera::CameraModel;
 
@@ -27,11 +28,6 @@ pub struct DemoRecorder {
     rng: ChaCha8Rng,
     jpeg: Vec<u8>,
     written: u64,
-}
-
-/// `(angle, throttle)` from wheel commands.
-pub fn angle_throttle(left: f32, right: f32) -> (f32, f32) {
-    ((left - right) / 2.0, (left + right) / 2.0)
 }
 
 impl DemoRecorder {
@@ -70,7 +66,7 @@ impl DemoRecorder {
                 path: "(simulated frame)".into(),
                 source,
             })?;
-        let (angle, throttle) = angle_throttle(step.wheels.left, step.wheels.right);
+        let (angle, throttle) = angle_throttle(step.wheels);
         let mode = if step.expert.is_some() {
             DriveMode::User
         } else {
