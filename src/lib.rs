@@ -19,3 +19,5 @@ pub mod drive;
 pub mod hw;
 pub mod policy;
 pub mod sim;
+#[cfg(feature = "train")]
+pub mod train;

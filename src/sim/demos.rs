@@ -16,8 +16,8 @@ use rand_chacha::ChaCha8Rng;
 use super::closed_loop::StepRecord;
 use super::expert::target_label;
 use crate::dataset::tub::{DriveMode, TubInputs, TubRecord, TubWriter};
-use crate::drive::recorder::angle_throttle;
 use crate::dataset::{DatasetError, jetbot_xy};
+use crate::drive::recorder::angle_throttle;
 use crate::sim::camera::CameraModel;
 
 /// Records simulated steps.

@@ -1,0 +1,59 @@
+//! The trainer (cargo feature `train`; the robot's build does not carry it).
+//!
+//! This folder owns everything that needs a deep-learning framework: the actor network
+//! as a [burn](https://burn.dev) module, its import from and export to the ONNX files the
+//! runtime loads, and (next) the training loop itself. burn 0.22 chooses its backend at
+//! run time through its `Device` (tensors carry only their rank in the type): the crate
+//! enables burn's `flex` feature, the pure-Rust CPU backend (`Device::flex()`); adding
+//! burn's `cuda` or `wgpu` feature makes `Device::cuda(0)` / `Device::wgpu(..)` available
+//! to the same model code. Gradients are a device decorator: `device.autodiff()`.
+//!
+//! - [`resnet`]: ResNet-18 in torchvision's layout, [`Resnet18::from_weights`] /
+//!   [`Resnet18::to_weights`] against the ONNX writer's [`Resnet18Weights`], and
+//!   [`load_onnx`] for our exports and torchvision-layout files exported from PyTorch.
+//!
+//! [`Resnet18Weights`]: crate::policy::onnx::Resnet18Weights
+
+pub mod resnet;
+
+pub use resnet::{Resnet18, load_onnx};
+
+/// Errors of the trainer.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("not an ONNX model: {path}: {source}")]
+    Decode {
+        path: String,
+        #[source]
+        source: prost::DecodeError,
+    },
+    /// The model's contract metadata is present but invalid.
+    #[error("{path}: {source}")]
+    Contract {
+        path: String,
+        #[source]
+        source: crate::policy::contract::ContractError,
+    },
+    #[error("tensor `{name}` is missing (expected shape {expected})")]
+    MissingTensor { name: String, expected: String },
+    #[error("tensor `{name}` has shape {found}, expected {expected}")]
+    TensorShape {
+        name: String,
+        expected: String,
+        found: String,
+    },
+    /// A tensor whose values cannot be read (not float32, external data, wrong length).
+    #[error("tensor `{name}`: {reason}")]
+    TensorData { name: String, reason: String },
+    /// Reading a tensor back from the backend failed.
+    #[error("backend: {0}")]
+    Backend(String),
+    #[error(transparent)]
+    Onnx(#[from] crate::policy::onnx::OnnxError),
+}
