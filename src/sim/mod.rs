@@ -19,6 +19,7 @@
 pub mod camera;
 pub mod closed_loop;
 pub mod demos;
+pub mod env;
 pub mod expert;
 pub mod realtime;
 pub mod render;
