@@ -19,9 +19,7 @@ use jetpilot::drive::{self, DriveError, DriveParams, Outcome, Parts, RunEnd};
 use jetpilot::hw::motor_hat::{HatSettings, MotorHat};
 use jetpilot::hw::motors::{MotorEvent, MotorRecord};
 use jetpilot::hw::{HatLayout, LogMotors, MotorOutput};
-use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
-use jetpilot::policy::{ModelContract, OrtPolicy, Policy, Preprocessor};
+use jetpilot::policy::{Policy, Preprocessor};
 
 const WATCHDOG: Duration = Duration::from_millis(200);
 /// Timer and scheduling slack allowed on top of the watchdog period on a busy 2-core machine.
@@ -44,19 +42,6 @@ fn gains() -> SteeringGains {
         steering_kd: 0.1,
         ..SteeringGains::default()
     }
-}
-
-fn load(path: &std::path::Path) -> OrtPolicy {
-    OrtPolicy::load(
-        path,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            intra_threads: 1,
-            fallback_contract: &ModelContract::default(),
-        },
-    )
-    .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
 }
 
 fn block_on<F: std::future::Future>(f: F) -> F::Output {
@@ -128,7 +113,7 @@ fn motor_commands_follow_the_model_through_the_steering_law() {
     let source = FolderSource::open(&frames, 10.0, false, clock.clone()).unwrap();
     let (outcome, record) = run_logged(
         Box::new(source),
-        Box::new(load(&model)),
+        Box::new(common::load_ort(&model)),
         clock,
         Duration::from_secs(30),
     );
@@ -139,7 +124,7 @@ fn motor_commands_follow_the_model_through_the_steering_law() {
     assert_eq!(got.len(), 12, "{report}");
 
     // The same frames through a second session and the law, by hand.
-    let mut policy = load(&model);
+    let mut policy = common::load_ort(&model);
     let mut pre = Preprocessor::new(policy.contract());
     let mut law = SteeringLaw::new(gains(), policy.contract().output);
     let files = jetpilot::camera::folder::list_images(&frames).unwrap();

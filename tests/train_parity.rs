@@ -4,14 +4,12 @@
 //! not the identity, and burn must use the running statistics as ONNX does.
 #![cfg(feature = "train")]
 
-use std::path::Path;
+mod common;
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use jetpilot::policy::onnx::{self, Resnet18Weights};
-use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
-use jetpilot::policy::{ModelContract, OrtPolicy, Policy};
+use jetpilot::policy::{ModelContract, Policy};
 use jetpilot::train::{Resnet18, load_onnx};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -48,19 +46,6 @@ fn weights() -> Resnet18Weights {
         }
     }
     w
-}
-
-fn ort(path: &Path) -> OrtPolicy {
-    OrtPolicy::load(
-        path,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            intra_threads: 1,
-            fallback_contract: &ModelContract::default(),
-        },
-    )
-    .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
 }
 
 /// Three NCHW `[1,3,64,64]` inputs, roughly normalised-image values.
@@ -102,7 +87,7 @@ fn burn_forward_matches_onnx_runtime() {
     assert_eq!(net.to_weights().unwrap(), w);
 
     let xs = inputs();
-    let mut policy = ort(&path);
+    let mut policy = common::load_ort(&path);
     let want: Vec<[f32; 2]> = xs.iter().map(|x| policy.infer(x).unwrap()).collect();
     let got = burn_outputs(&net, &xs, &device);
     let diff = max_diff(&got, &want);
@@ -155,7 +140,7 @@ fn burn_weights_export_back_to_the_same_onnx_outputs() {
         &onnx::resnet18_model(SIZE, &exported, &contract(), "test").unwrap(),
     )
     .unwrap();
-    let (mut a, mut b) = (ort(&original), ort(&round_trip));
+    let (mut a, mut b) = (common::load_ort(&original), common::load_ort(&round_trip));
     let xs = inputs();
     let got: Vec<[f32; 2]> = xs.iter().map(|x| b.infer(x).unwrap()).collect();
     let want: Vec<[f32; 2]> = xs.iter().map(|x| a.infer(x).unwrap()).collect();

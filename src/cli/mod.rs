@@ -101,6 +101,15 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// Seconds since the Unix epoch, for stamping recordings (the library never reads the wall
+/// clock itself).
+fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
 /// Human-readable logs on a terminal; plain lines without timestamps under systemd
 /// (journald adds its own), detected by `JOURNAL_STREAM`.
 fn init_tracing(verbose: u8, quiet: bool) {

@@ -123,10 +123,7 @@ fn teleop_parts(
         }
         None => None,
     };
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0);
+    let now = super::unix_now();
     let tub = TubWriter::create(&cfg.record.path, &TubInputs::ALL, now)
         .with_context(|| format!("recording to {}", cfg.record.path.display()))?;
     let recorder = Recorder::start(

@@ -257,10 +257,7 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
     let mut recorder = match &args.record {
         Some(dir) => {
-            let now = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_secs_f64())
-                .unwrap_or(0.0);
+            let now = super::unix_now();
             Some(DemoRecorder::create(
                 dir,
                 args.record_xy.as_deref(),

@@ -105,3 +105,20 @@ pub(crate) fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
     let rgb = img.to_rgb8();
     Ok((rgb.width(), rgb.height(), rgb.into_raw()))
 }
+
+/// JPEG-encodes an RGB8 frame into `out` (cleared first, so its allocation is reused):
+/// what both the daemon's recorder and the simulator's demonstrations store.
+pub fn encode_jpeg(
+    rgb: &[u8],
+    width: u32,
+    height: u32,
+    out: &mut Vec<u8>,
+) -> std::result::Result<(), image::ImageError> {
+    out.clear();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(out, 90).encode(
+        rgb,
+        width,
+        height,
+        image::ExtendedColorType::Rgb8,
+    )
+}

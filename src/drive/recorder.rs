@@ -24,9 +24,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 
-use image::ExtendedColorType;
-use image::codecs::jpeg::JpegEncoder;
-
 use crate::control::WheelCommand;
 use crate::dataset::DatasetError;
 use crate::dataset::tub::{DriveMode, TubRecord, TubWriter};
@@ -206,13 +203,7 @@ fn write_loop(
             counts.stopped.store(true, Ordering::Relaxed);
             continue;
         }
-        jpeg.clear();
-        if let Err(e) = JpegEncoder::new_with_quality(&mut jpeg, 90).encode(
-            &step.rgb,
-            step.width,
-            step.height,
-            ExtendedColorType::Rgb8,
-        ) {
+        if let Err(e) = crate::dataset::encode_jpeg(&step.rgb, step.width, step.height, &mut jpeg) {
             tracing::warn!(error = %e, "cannot encode a frame; step skipped");
             continue;
         }

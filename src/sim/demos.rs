@@ -8,8 +8,6 @@
 
 use std::path::Path;
 
-use image::ExtendedColorType;
-use image::codecs::jpeg::JpegEncoder;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -59,13 +57,12 @@ impl DemoRecorder {
     /// Appends one step. The expert's steps are "user" (the human stand-in), a model's "local".
     pub fn append(&mut self, step: &StepRecord<'_>) -> Result<(), DatasetError> {
         let f = step.frame;
-        self.jpeg.clear();
-        JpegEncoder::new_with_quality(&mut self.jpeg, 90)
-            .encode(&f.rgb, f.width, f.height, ExtendedColorType::Rgb8)
-            .map_err(|source| DatasetError::Image {
+        crate::dataset::encode_jpeg(&f.rgb, f.width, f.height, &mut self.jpeg).map_err(
+            |source| DatasetError::Image {
                 path: "(simulated frame)".into(),
                 source,
-            })?;
+            },
+        )?;
         let (angle, throttle) = angle_throttle(step.wheels);
         let mode = if step.expert.is_some() {
             DriveMode::User

@@ -21,18 +21,6 @@ pub use resnet::{Resnet18, load_onnx};
 /// Errors of the trainer.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: String,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("not an ONNX model: {path}: {source}")]
-    Decode {
-        path: String,
-        #[source]
-        source: prost::DecodeError,
-    },
     /// The model's contract metadata is present but invalid.
     #[error("{path}: {source}")]
     Contract {

@@ -336,9 +336,11 @@ fn shape_string(dims: &[i64]) -> String {
 /// (or `do_constant_folding=False`) from a model in eval mode to keep the names.
 pub fn load_onnx(path: &Path, device: &Device) -> Result<(Resnet18, ModelContract), TrainError> {
     let shown = path.display().to_string();
-    let bytes = Bytes::from(std::fs::read(path).map_err(|source| TrainError::Read {
-        path: shown.clone(),
-        source,
+    let bytes = Bytes::from(std::fs::read(path).map_err(|source| {
+        crate::policy::onnx::OnnxError::Read {
+            path: shown.clone(),
+            source,
+        }
     })?);
     let summary = inspect_bytes(bytes.clone(), &shown)?;
     let contract = match summary.contract() {
@@ -361,10 +363,11 @@ pub fn load_onnx(path: &Path, device: &Device) -> Result<(Resnet18, ModelContrac
             });
         }
     };
-    let model = ModelProto::decode(bytes).map_err(|source| TrainError::Decode {
-        path: shown.clone(),
-        source,
-    })?;
+    let model =
+        ModelProto::decode(bytes).map_err(|source| crate::policy::onnx::OnnxError::Decode {
+            path: shown.clone(),
+            source,
+        })?;
     let initializers = model.graph.map(|g| g.initializer).unwrap_or_default();
     let weights = weights_from_initializers(&initializers)?;
     Ok((Resnet18::from_weights(&weights, device)?, contract))

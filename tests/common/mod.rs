@@ -12,7 +12,9 @@ use jetpilot::camera::synthetic::{render_road, sample_view};
 use jetpilot::camera::{CameraError, Frame, FrameSource};
 use jetpilot::clock::Clock;
 use jetpilot::policy::onnx::{self, Resnet18Weights};
-use jetpilot::policy::{ModelContract, Policy, PolicyError};
+use jetpilot::policy::ort_policy::OrtOptions;
+use jetpilot::policy::runtime::Provider;
+use jetpilot::policy::{ModelContract, OrtPolicy, Policy, PolicyError};
 
 /// A random ResNet-18 at `size` x `size` with our contract in its metadata.
 pub fn write_model(dir: &Path, size: u32, seed: u64) -> PathBuf {
@@ -188,4 +190,18 @@ impl embedded_hal::i2c::I2c for FlakyBus {
         }
         if failed { Err(BusError) } else { Ok(()) }
     }
+}
+
+/// A model on ONNX Runtime's CPU provider, one thread, the default fallback contract.
+pub fn load_ort(path: &Path) -> OrtPolicy {
+    OrtPolicy::load(
+        path,
+        &OrtOptions {
+            library: None,
+            providers: &[Provider::Cpu],
+            intra_threads: 1,
+            fallback_contract: &ModelContract::default(),
+        },
+    )
+    .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
 }
