@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Debian packages the build needs, installed only when missing (idempotent):
-# libclang-dev for bindgen (the v4l crate generates its V4L2 bindings at build time).
+# libclang-dev for bindgen (the v4l crate generates its V4L2 bindings at build time);
+# fonts-dejavu-core for the text of the trainer's learning-curve PNGs.
 set -euo pipefail
 need=()
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
+dpkg -s fonts-dejavu-core >/dev/null 2>&1 || need+=(fonts-dejavu-core)
 if [ ${#need[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" -eq 0 ] || SUDO=sudo

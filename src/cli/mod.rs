@@ -10,6 +10,12 @@ mod panel;
 mod run;
 mod samples;
 mod sim;
+#[cfg(feature = "train")]
+mod train;
+#[cfg(feature = "train")]
+mod train_bench;
+#[cfg(feature = "train")]
+mod train_ddpg;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -68,6 +74,17 @@ enum Command {
     /// Score a model with the paper's protocol: a 600 s simulated test, interventions,
     /// autonomy value, reward count, laps, mean speed.
     Eval(sim::EvalArgs),
+    /// Train policies: imitation learning on demonstrations, DDPG fine-tuning in the
+    /// simulator (needs a build with `--features train`).
+    #[cfg(feature = "train")]
+    #[command(subcommand)]
+    Train(train::TrainCommand),
+    /// Train policies (this build has no trainer: build with `--features train`).
+    #[cfg(not(feature = "train"))]
+    Train {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+        args: Vec<String>,
+    },
     /// Write synthetic road frames (a JetBot-mat road bending left and right) to try `run`
     /// without a camera.
     Samples(samples::SamplesArgs),
@@ -88,6 +105,12 @@ pub fn main() -> ExitCode {
         Command::Samples(args) => samples::main(args),
         Command::Sim(args) => sim::sim(args),
         Command::Eval(args) => sim::eval(args),
+        #[cfg(feature = "train")]
+        Command::Train(cmd) => train::main(cmd),
+        #[cfg(not(feature = "train"))]
+        Command::Train { .. } => Err(anyhow::anyhow!(
+            "this jetpilot was built without the trainer: build it with `cargo build --release --features train`"
+        )),
     };
     match result {
         Ok(code) => code,

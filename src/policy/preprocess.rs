@@ -103,12 +103,15 @@ impl Preprocessor {
         self.size
     }
 
-    /// Preprocesses one RGB8 frame (`width * height * 3` bytes, rows top to bottom, no
-    /// padding) and returns the NCHW tensor data, `3 * input_size * input_size` values.
-    ///
-    /// The returned slice is the preprocessor's own buffer: it is overwritten by the next
-    /// call.
-    pub fn run(&mut self, width: u32, height: u32, rgb: &[u8]) -> Result<&[f32], PreprocessError> {
+    /// Step 1 alone: the frame resized to `input_size x input_size`, RGB8 (the frame itself
+    /// when it already has that size). The trainer caches these so that its inputs are the
+    /// daemon's, pixel for pixel.
+    pub fn resize<'a>(
+        &'a mut self,
+        width: u32,
+        height: u32,
+        rgb: &'a [u8],
+    ) -> Result<&'a [u8], PreprocessError> {
         if width == 0 || height == 0 {
             return Err(PreprocessError::ZeroSize { width, height });
         }
@@ -123,30 +126,46 @@ impl Preprocessor {
                 found: rgb.len(),
             });
         }
-
         let size = self.size;
-        let pixels: &[u8] = if width == size && height == size {
-            rgb
-        } else {
-            let resize_err = |reason: String| PreprocessError::Resize {
-                width,
-                height,
-                size,
-                reason,
-            };
-            let src = ImageRef::new(width, height, rgb, PixelType::U8x3)
-                .map_err(|e| resize_err(e.to_string()))?;
-            self.resizer
-                .resize(&src, &mut self.resized, &self.options)
-                .map_err(|e| resize_err(e.to_string()))?;
-            self.resized.buffer()
+        if width == size && height == size {
+            return Ok(rgb);
+        }
+        let resize_err = |reason: String| PreprocessError::Resize {
+            width,
+            height,
+            size,
+            reason,
         };
+        let src = ImageRef::new(width, height, rgb, PixelType::U8x3)
+            .map_err(|e| resize_err(e.to_string()))?;
+        self.resizer
+            .resize(&src, &mut self.resized, &self.options)
+            .map_err(|e| resize_err(e.to_string()))?;
+        Ok(self.resized.buffer())
+    }
 
+    /// Preprocesses one RGB8 frame (`width * height * 3` bytes, rows top to bottom, no
+    /// padding) and returns the NCHW tensor data, `3 * input_size * input_size` values.
+    ///
+    /// The returned slice is the preprocessor's own buffer: it is overwritten by the next
+    /// call.
+    pub fn run(&mut self, width: u32, height: u32, rgb: &[u8]) -> Result<&[f32], PreprocessError> {
+        let size = self.size;
+        let mut output = std::mem::take(&mut self.output);
+        let lut = self.lut;
+        let source_channel = self.source_channel;
+        let pixels = match self.resize(width, height, rgb) {
+            Ok(p) => p,
+            Err(e) => {
+                self.output = output;
+                return Err(e);
+            }
+        };
         let plane_len = size as usize * size as usize;
-        let (p0, rest) = self.output.split_at_mut(plane_len);
+        let (p0, rest) = output.split_at_mut(plane_len);
         let (p1, p2) = rest.split_at_mut(plane_len);
-        let [c0, c1, c2] = self.source_channel;
-        let [l0, l1, l2] = &self.lut;
+        let [c0, c1, c2] = source_channel;
+        let [l0, l1, l2] = &lut;
         for (((px, o0), o1), o2) in pixels
             .chunks_exact(3)
             .zip(p0.iter_mut())
@@ -157,6 +176,7 @@ impl Preprocessor {
             *o1 = l1[usize::from(px[c1])];
             *o2 = l2[usize::from(px[c2])];
         }
+        self.output = output;
         Ok(&self.output)
     }
 }

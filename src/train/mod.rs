@@ -14,6 +14,12 @@
 //!
 //! [`Resnet18Weights`]: crate::policy::onnx::Resnet18Weights
 
+pub mod augment;
+pub mod curve;
+pub mod data;
+pub mod ddpg;
+pub mod export;
+pub mod il;
 pub mod resnet;
 
 pub use resnet::{Resnet18, load_onnx};
@@ -44,4 +50,12 @@ pub enum TrainError {
     Backend(String),
     #[error(transparent)]
     Onnx(#[from] crate::policy::onnx::OnnxError),
+    /// A demonstration folder, file or training output that cannot be used.
+    #[error("{path}: {reason}")]
+    Data { path: String, reason: String },
+    /// The loss became NaN or infinite (lower the learning rate).
+    #[error("training diverged in epoch {epoch}: loss {loss}; lower --lr")]
+    Diverged { epoch: usize, loss: f64 },
+    #[error(transparent)]
+    Curve(#[from] curve::CurveError),
 }

@@ -1,0 +1,171 @@
+//! `jetpilot train il` (imitation learning) and `jetpilot train ddpg` (fine-tuning in the
+//! simulator), built with the cargo feature `train`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use jetpilot::config::Config;
+use jetpilot::policy::{ModelContract, OutputKind};
+use jetpilot::train::augment::Augment;
+use jetpilot::train::data::{self, LabelMap};
+use jetpilot::train::il::{self, IlOptions};
+
+#[derive(Debug, clap::Subcommand)]
+pub enum TrainCommand {
+    /// Imitation learning (behaviour cloning) on demonstrations: DonkeyCar tubs from
+    /// `jetpilot record` / `jetpilot sim --record`, or JetBot road-following xy folders.
+    /// Writes best.onnx (lowest test loss), last.onnx, il_log.csv, il_curve.png.
+    Il(IlArgs),
+    /// DDPG fine-tuning in the replayed-frame simulator, bootstrapped with the imitation
+    /// policy and the demonstrations' rewards (DDPGfD). Writes best.onnx (highest autonomy
+    /// in the 600 s test).
+    Ddpg(super::train_ddpg::DdpgArgs),
+    /// Measure the trainer: burn's raw step against imitation learning's images/s, and
+    /// DDPG's environment steps/s with the frozen backbone, updates included.
+    Bench(super::train_bench::TrainBenchArgs),
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum Head {
+    /// JetBot's target point (x, y).
+    Xy,
+    /// The paper's (speed, steering).
+    SpeedSteering,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct IlArgs {
+    /// A tub or JetBot xy folder (repeat for several).
+    #[arg(long, value_name = "DIR", required = true)]
+    data: Vec<PathBuf>,
+    /// Output folder (created).
+    #[arg(short, long, value_name = "DIR")]
+    out: PathBuf,
+    /// Config giving the steering gains (labels of speed_steering models are the law
+    /// inverted on the recorded wheels) and the model contract (`[model]`).
+    #[arg(short, long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Start from this ONNX ResNet-18 (our export, or torchvision's layout from PyTorch);
+    /// default: random weights.
+    #[arg(long, value_name = "FILE")]
+    init: Option<PathBuf>,
+    /// Network input size (default: the config's `model.input_size`).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(32..=1024))]
+    input_size: Option<u32>,
+    /// What the outputs mean (default: the config's `model.output`).
+    #[arg(long, value_enum)]
+    head: Option<Head>,
+    #[arg(long, default_value_t = 50)]
+    epochs: usize,
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
+    batch: u64,
+    /// Adam learning rate.
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Share of the demonstrations held out to pick the best epoch.
+    #[arg(long, default_value_t = 0.1)]
+    test_fraction: f32,
+    /// Seed of the split, the shuffles, the augmentation and a random initialisation.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// No flip and no colour jitter.
+    #[arg(long)]
+    no_augment: bool,
+    /// Continue after the last finished epoch in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Threads decoding images (default: the number of cores).
+    #[arg(long)]
+    decode_threads: Option<usize>,
+}
+
+pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
+    match cmd {
+        TrainCommand::Il(args) => il_main(args),
+        TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
+        TrainCommand::Bench(args) => super::train_bench::main(args),
+    }
+}
+
+/// The config, or the defaults when none is given.
+pub fn config(path: Option<&PathBuf>) -> anyhow::Result<Config> {
+    match path {
+        Some(p) => Config::load(p).with_context(|| format!("loading {}", p.display())),
+        None => Ok(Config::default()),
+    }
+}
+
+fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
+    let cfg = config(args.config.as_ref())?;
+    let mut contract: ModelContract = cfg.model.fallback_contract();
+    if let Some(s) = args.input_size {
+        contract.input_size = s;
+    }
+    if let Some(h) = args.head {
+        contract.output = match h {
+            Head::Xy => OutputKind::Xy,
+            Head::SpeedSteering => OutputKind::SpeedSteering,
+        };
+    }
+    if !(0.0..1.0).contains(&args.test_fraction) {
+        anyhow::bail!("--test-fraction must be in 0..1, got {}", args.test_fraction);
+    }
+    let labels = LabelMap::new(contract.output, &cfg.control.gains());
+    let threads = args.decode_threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(2)
+    });
+    let t0 = std::time::Instant::now();
+    let dataset = data::load(&args.data, &contract, &labels, threads)?;
+    for w in dataset.warnings.iter().take(10) {
+        tracing::warn!("{w}");
+    }
+    tracing::info!(
+        samples = dataset.samples.len(),
+        size = contract.input_size,
+        output = contract.output.as_str(),
+        seconds = format!("{:.1}", t0.elapsed().as_secs_f64()),
+        "demonstrations decoded"
+    );
+    let mut opts = IlOptions::paper(args.out.clone(), contract, labels);
+    opts.init = args.init;
+    opts.epochs = args.epochs;
+    opts.batch = args.batch as usize;
+    opts.lr = args.lr;
+    opts.test_fraction = args.test_fraction;
+    opts.seed = args.seed;
+    opts.resume = args.resume;
+    opts.progress = !cfg!(test);
+    if args.no_augment {
+        opts.augment = Augment::NONE;
+    }
+    let report = il::train(&dataset, &opts, |e| {
+        tracing::info!(
+            epoch = e.epoch,
+            train_loss = format!("{:.5}", e.train_loss),
+            test_loss = format!("{:.5}", e.test_loss),
+            images_per_s = format!("{:.1}", e.images_per_s),
+            "epoch done"
+        );
+    })?;
+    if let Some(w) = &report.plot_warning {
+        tracing::warn!("{w}");
+    }
+    println!(
+        "imitation learning: {} epochs on {} train / {} test frames; best test loss {:.5} at epoch {} -> {}",
+        report.state.epochs_done,
+        report.train_samples,
+        report.test_samples,
+        report.state.best_test_loss,
+        report.state.best_epoch,
+        report.best_path.display()
+    );
+    println!(
+        "log: {}  curve: {}",
+        il::csv_path(&args.out).display(),
+        il::png_path(&args.out).display()
+    );
+    Ok(ExitCode::SUCCESS)
+}

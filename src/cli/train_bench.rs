@@ -1,0 +1,113 @@
+//! `jetpilot train bench`: the trainer's speed targets, measured.
+//!
+//! - burn's raw training step (forward + backward + Adam on one constant batch) against
+//!   imitation learning's images/s with its whole data pipeline (cached frames, augmentation
+//!   on the prefetch thread, batches built per step); target >= 90 %.
+//! - DDPG with the frozen backbone: environment steps/s, updates included; target >= 50
+//!   at 96x96.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use jetpilot::policy::{ModelContract, OutputKind};
+use jetpilot::train::augment::Augment;
+use jetpilot::train::data::{Dataset, LabelMap, Sample};
+use jetpilot::train::ddpg::{self, DdpgOptions};
+use jetpilot::train::il::{self, IlOptions};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+#[derive(Debug, clap::Args)]
+pub struct TrainBenchArgs {
+    /// Simulator config for the DDPG measurement.
+    #[arg(long, value_name = "FILE", default_value = "config/sim.toml")]
+    sim: PathBuf,
+    /// Network input size.
+    #[arg(long, default_value_t = 96)]
+    input_size: u32,
+    /// Imitation-learning batch size.
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Timed raw training steps.
+    #[arg(long, default_value_t = 8)]
+    steps: usize,
+    /// Imitation-learning epochs over `4 x batch` synthetic frames.
+    #[arg(long, default_value_t = 2)]
+    epochs: usize,
+    /// DDPG training episodes (300 steps at most each).
+    #[arg(long, default_value_t = 6)]
+    episodes: usize,
+    /// Skip a part: `il` or `ddpg`.
+    #[arg(long)]
+    skip: Option<String>,
+}
+
+pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
+    let scratch = tempfile_dir()?;
+    if args.skip.as_deref() != Some("il") {
+        let raw = il::raw_throughput(args.input_size, args.batch, args.steps)?;
+        let contract = ModelContract {
+            input_size: args.input_size,
+            output: OutputKind::SpeedSteering,
+            ..ModelContract::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let n = 4 * args.batch;
+        let px = (args.input_size * args.input_size * 3) as usize;
+        let data = Dataset {
+            size: args.input_size,
+            samples: (0..n)
+                .map(|_| Sample {
+                    pixels: (0..px).map(|_| rng.random()).collect(),
+                    label: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
+                })
+                .collect(),
+            warnings: Vec::new(),
+        };
+        let labels = LabelMap::new(OutputKind::SpeedSteering, &Default::default());
+        let mut opts = IlOptions::paper(scratch.join("il"), contract, labels);
+        opts.epochs = args.epochs;
+        opts.batch = args.batch;
+        opts.test_fraction = 0.0;
+        opts.augment = Augment::JETBOT;
+        opts.progress = false;
+        let mut rates = Vec::new();
+        il::train(&data, &opts, |e| rates.push(e.images_per_s))?;
+        let pipeline = rates.iter().sum::<f64>() / rates.len().max(1) as f64;
+        println!(
+            "imitation learning {s}x{s} batch {b}: raw step {raw:.1} img/s, with the data pipeline {pipeline:.1} img/s = {:.1} % (target >= 90 %)",
+            100.0 * pipeline / raw,
+            s = args.input_size,
+            b = args.batch,
+        );
+    }
+    if args.skip.as_deref() != Some("ddpg") {
+        let cfg = super::train::config(Some(&args.sim))?;
+        let mut opts = DdpgOptions::new(scratch.join("ddpg"), cfg);
+        opts.input_size = args.input_size;
+        opts.max_episodes = args.episodes;
+        opts.episode_steps = 300;
+        opts.eval_every = 0;
+        opts.eval_seconds = 1.0;
+        opts.warmup_updates = 0;
+        let report = ddpg::train(&opts, |_| {}, |_, _| {})?;
+        println!(
+            "DDPG frozen backbone {s}x{s}: {} environment steps in {} episodes, {:.1} steps/s with {} updates (batch {}, {} per step) (target >= 50)",
+            report.env_steps,
+            report.episodes,
+            report.steps_per_s,
+            report.updates,
+            opts.agent.batch,
+            opts.updates_per_step,
+            s = args.input_size,
+        );
+    }
+    let _ = std::fs::remove_dir_all(&scratch);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn tempfile_dir() -> anyhow::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("jetpilot-train-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}

@@ -1,0 +1,418 @@
+//! One DDPG learner: owns the online and target networks, their optimisers and the update
+//! step, with DDPGfD's and TD3's options.
+//!
+//! ```text
+//! target:  a' = clip(pi'(f') + clip(N(0, s), -c, c), low, high)       (TD3 smoothing; s = 0: DDPG)
+//!          y  = R + discount * min_i Q'_i(f', a')                      (one critic: DDPG)
+//! critic:  L_Q  = mean_i mean (Q_i(f, a) - y)^2
+//! actor:   every `policy_delay` updates (TD3's delayed actor; 1: DDPG)
+//!          L_pi = -mean Q_1(f, pi(f)) / mean|Q_1| (detached scale, as TD3+BC)
+//!                 + bc_weight * sum_demo [Q_1(f, a_demo) > Q_1(f, pi(f))] |pi(f) - a_demo|^2 / n_demo
+//!                 + anchor_weight * mean |pi(f) - pi_0(f)|^2       (stay near the imitation policy)
+//!                 + mean relu(|pi(f) - mid| - half_range)^2        (keep outputs in range)
+//! targets: Polyak averaging with tau after each update
+//! ```
+//!
+//! The bracket is the Q-filter: the behaviour-cloning pull towards a demonstration applies
+//! only where the critic still rates the demonstrated action above the actor's own.
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::features::{FEATURES, Head};
+use super::nets::{ActorHead, Critic, polyak_actor, polyak_critic, read};
+use super::replay::Replay;
+use crate::train::TrainError;
+
+/// Learner settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AgentConfig {
+    pub gamma: f32,
+    pub tau: f32,
+    pub actor_lr: f64,
+    pub critic_lr: f64,
+    pub batch: usize,
+    pub hidden: usize,
+    /// TD3: two critics, the minimum in the target.
+    pub twin: bool,
+    /// TD3: update the actor every this many critic updates.
+    pub policy_delay: usize,
+    /// TD3 target smoothing noise and its clip (0: off).
+    pub target_noise: f32,
+    pub target_noise_clip: f32,
+    /// Weight of the Q-filtered behaviour-cloning loss on demonstrations (0: off).
+    pub bc_weight: f32,
+    pub q_filter: bool,
+    /// Weight of the pull towards the initial (imitation) policy on every sampled state,
+    /// `mean |pi(f) - pi_0(f)|^2` (0: off). Without it a critic trained on a few thousand
+    /// near-on-policy transitions drags all 512 head weights at once and the policy drifts
+    /// off the road within a few hundred updates (measured).
+    pub anchor_weight: f32,
+    /// Action bounds `[speed, steering]`.
+    pub low: [f32; 2],
+    pub high: [f32; 2],
+}
+
+impl Default for AgentConfig {
+    fn default() -> Self {
+        Self {
+            gamma: 0.98,
+            tau: 0.005,
+            actor_lr: 1e-5,
+            critic_lr: 1e-3,
+            batch: 128,
+            hidden: 256,
+            twin: true,
+            policy_delay: 2,
+            target_noise: 0.1,
+            target_noise_clip: 0.25,
+            bc_weight: 1.0,
+            q_filter: true,
+            anchor_weight: 0.0,
+            low: [0.0, -1.0],
+            high: [1.0, 1.0],
+        }
+    }
+}
+
+/// Losses of one update (actor loss only when the actor was updated).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct UpdateStats {
+    pub critic_loss: f64,
+    pub actor_loss: Option<f64>,
+    pub mean_q: f64,
+}
+
+pub struct Agent {
+    cfg: AgentConfig,
+    device: Device,
+    inner: Device,
+    actor: ActorHead,
+    actor_target: ActorHead,
+    /// The initial actor, frozen, on the plain device.
+    anchor: ActorHead,
+    critics: Vec<Critic>,
+    critic_targets: Vec<Critic>,
+    actor_opt: burn::optim::ModuleOptimizer,
+    critic_opts: Vec<burn::optim::ModuleOptimizer>,
+    updates: u64,
+}
+
+/// A sampled batch, as tensors on one device.
+struct BatchTensors {
+    f: Tensor<2>,
+    a: Tensor<2>,
+    r: Tensor<2>,
+    next: Tensor<2>,
+    discount: Tensor<2>,
+    demo: Tensor<2>,
+    n_demo: usize,
+}
+
+impl Agent {
+    /// Networks on `device` (an autodiff device), actor from `head`; seeds burn's RNG.
+    pub fn new(cfg: AgentConfig, head: &Head, seed: u64) -> Self {
+        let inner = Device::flex();
+        let device = inner.clone().autodiff();
+        device.seed(seed);
+        let actor = ActorHead::from_head(head, &device);
+        let n_critics = if cfg.twin { 2 } else { 1 };
+        let critics: Vec<Critic> = (0..n_critics)
+            .map(|_| Critic::new(cfg.hidden, &device))
+            .collect();
+        Self {
+            actor_target: actor.clone().valid(),
+            anchor: actor.clone().valid(),
+            critic_targets: critics.iter().map(|c| c.clone().valid()).collect(),
+            actor,
+            critics,
+            actor_opt: AdamConfig::new().init(),
+            critic_opts: (0..n_critics).map(|_| AdamConfig::new().init()).collect(),
+            cfg,
+            device,
+            inner,
+            updates: 0,
+        }
+    }
+
+    pub fn config(&self) -> &AgentConfig {
+        &self.cfg
+    }
+
+    /// The actor as a plain head.
+    pub fn head(&self) -> Result<Head, TrainError> {
+        self.actor.clone().valid().to_head()
+    }
+
+    fn tensors(&self, replay: &Replay, idx: &[usize], device: &Device) -> BatchTensors {
+        let n = idx.len();
+        let mut f = Vec::with_capacity(n * FEATURES);
+        let mut next = Vec::with_capacity(n * FEATURES);
+        let (mut a, mut r, mut d, mut demo) = (
+            Vec::with_capacity(2 * n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
+        for &i in idx {
+            let t = replay.get(i);
+            f.extend_from_slice(&t.features);
+            next.extend_from_slice(&t.next_features);
+            a.extend_from_slice(&t.action);
+            r.push(t.reward);
+            d.push(t.discount);
+            demo.push(if t.demo { 1.0f32 } else { 0.0 });
+        }
+        let n_demo = demo.iter().filter(|v| **v > 0.0).count();
+        let t2 = |v: Vec<f32>, w: usize| Tensor::<2>::from_data(TensorData::new(v, [n, w]), device);
+        BatchTensors {
+            f: t2(f, FEATURES),
+            a: t2(a, 2),
+            r: t2(r, 1),
+            next: t2(next, FEATURES),
+            discount: t2(d, 1),
+            demo: t2(demo, 1),
+            n_demo,
+        }
+    }
+
+    fn clamp_actions(&self, a: Tensor<2>) -> Tensor<2> {
+        let [n, _] = a.dims();
+        let dev = a.device();
+        let low = Tensor::<2>::from_data(TensorData::new(self.cfg.low.to_vec(), [1, 2]), &dev)
+            .expand([n, 2]);
+        let high = Tensor::<2>::from_data(TensorData::new(self.cfg.high.to_vec(), [1, 2]), &dev)
+            .expand([n, 2]);
+        a.max_pair(low).min_pair(high)
+    }
+
+    /// The TD target `y` for a batch, on the plain device.
+    fn targets(&self, b: &BatchTensors, rng: &mut impl Rng) -> Tensor<2> {
+        let mut a_next = self.actor_target.forward(b.next.clone());
+        if self.cfg.target_noise > 0.0 {
+            let [n, _] = a_next.dims();
+            let c = self.cfg.target_noise_clip;
+            let noise: Vec<f32> = (0..2 * n)
+                .map(|_| {
+                    let z: f32 = StandardNormal.sample(rng);
+                    (z * self.cfg.target_noise).clamp(-c, c)
+                })
+                .collect();
+            a_next = a_next + Tensor::<2>::from_data(TensorData::new(noise, [n, 2]), &self.inner);
+        }
+        let a_next = self.clamp_actions(a_next);
+        let mut q_next = self.critic_targets[0].forward(b.next.clone(), a_next.clone());
+        for t in &self.critic_targets[1..] {
+            q_next = q_next.min_pair(t.forward(b.next.clone(), a_next.clone()));
+        }
+        b.r.clone() + b.discount.clone() * q_next
+    }
+
+    /// One update from a batch sampled from `replay`. `train_actor = false` trains only the
+    /// critics (the warm-up that keeps a random critic from wrecking the imitation policy).
+    pub fn update(
+        &mut self,
+        replay: &Replay,
+        train_actor: bool,
+        rng: &mut impl Rng,
+    ) -> Result<UpdateStats, TrainError> {
+        let idx = replay.sample(self.cfg.batch, rng);
+        if idx.is_empty() {
+            return Ok(UpdateStats::default());
+        }
+        let plain = self.tensors(replay, &idx, &self.inner);
+        let y = self.targets(&plain, rng);
+        let y = Tensor::<2>::from_data(y.into_data(), &self.device);
+        let b = self.tensors(replay, &idx, &self.device);
+
+        // Critics.
+        let mut loss: Option<Tensor<1>> = None;
+        let mut mean_q = 0.0;
+        for (i, c) in self.critics.iter().enumerate() {
+            let q = c.forward(b.f.clone(), b.a.clone());
+            if i == 0 {
+                mean_q = scalar(q.clone().detach().mean())?;
+            }
+            let l = (q - y.clone()).powi_scalar(2).mean();
+            loss = Some(match loss {
+                Some(acc) => acc + l,
+                None => l,
+            });
+        }
+        let Some(loss) = loss else {
+            return Ok(UpdateStats::default());
+        };
+        let critic_loss = scalar(loss.clone().detach())?;
+        if !critic_loss.is_finite() {
+            return Err(TrainError::Backend(format!(
+                "critic loss became {critic_loss}; lower --critic-lr"
+            )));
+        }
+        let mut grads = loss.backward();
+        let mut new_critics = Vec::with_capacity(self.critics.len());
+        for (c, opt) in self.critics.drain(..).zip(self.critic_opts.iter_mut()) {
+            let g = GradientsParams::from_module(&mut grads, &c);
+            new_critics.push(opt.step(self.cfg.critic_lr, c, g));
+        }
+        self.critics = new_critics;
+        self.updates += 1;
+
+        let mut actor_loss = None;
+        if train_actor && self.updates % self.cfg.policy_delay.max(1) as u64 == 0 {
+            actor_loss = Some(self.update_actor(&b)?);
+            self.actor_target = polyak_actor(&self.actor_target, &self.actor.clone().valid(), self.cfg.tau);
+        }
+        let online: Vec<Critic> = self.critics.iter().map(|c| c.clone().valid()).collect();
+        for (t, o) in self.critic_targets.iter_mut().zip(&online) {
+            *t = polyak_critic(t, o, self.cfg.tau);
+        }
+        Ok(UpdateStats {
+            critic_loss,
+            actor_loss,
+            mean_q,
+        })
+    }
+
+    fn update_actor(&mut self, b: &BatchTensors) -> Result<f64, TrainError> {
+        let critic = &self.critics[0];
+        let a_pi = self.actor.forward(b.f.clone());
+        let q_pi = critic.forward(b.f.clone(), a_pi.clone());
+        let scale = scalar(q_pi.clone().detach().abs().mean())?.max(1e-3);
+        let mut loss = q_pi.clone().mean().mul_scalar(-1.0 / scale);
+
+        if self.cfg.bc_weight > 0.0 && b.n_demo > 0 {
+            let mut mask = b.demo.clone();
+            if self.cfg.q_filter {
+                let q_demo = critic.forward(b.f.clone(), b.a.clone()).detach();
+                let better = q_demo.greater(q_pi.clone().detach()).float();
+                mask = mask * better;
+            }
+            let sq = (a_pi.clone() - b.a.clone()).powi_scalar(2).sum_dim(1); // [B,1]
+            let bc = (sq * mask).sum().div_scalar(b.n_demo as f32);
+            loss = loss + bc.mul_scalar(self.cfg.bc_weight);
+        }
+        if self.cfg.anchor_weight > 0.0 {
+            let f_plain = Tensor::<2>::from_data(b.f.clone().into_data(), &self.inner);
+            let a0 = self.anchor.forward(f_plain);
+            let a0 = Tensor::<2>::from_data(a0.into_data(), &self.device);
+            let drift = (a_pi.clone() - a0).powi_scalar(2).sum_dim(1).mean();
+            loss = loss + drift.mul_scalar(self.cfg.anchor_weight);
+        }
+        // Keep the outputs inside the action range.
+        let [n, _] = a_pi.dims();
+        let mid: Vec<f32> = (0..2).map(|i| (self.cfg.low[i] + self.cfg.high[i]) / 2.0).collect();
+        let half: Vec<f32> = (0..2).map(|i| (self.cfg.high[i] - self.cfg.low[i]) / 2.0).collect();
+        let mid = Tensor::<2>::from_data(TensorData::new(mid, [1, 2]), &self.device).expand([n, 2]);
+        let half = Tensor::<2>::from_data(TensorData::new(half, [1, 2]), &self.device).expand([n, 2]);
+        let out_of_range = relu((a_pi - mid).abs() - half).powi_scalar(2).mean();
+        loss = loss + out_of_range;
+
+        let value = scalar(loss.clone().detach())?;
+        let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
+        self.actor = self.actor_opt.step(self.cfg.actor_lr, self.actor.clone(), grads);
+        Ok(value)
+    }
+}
+
+fn scalar(t: Tensor<1>) -> Result<f64, TrainError> {
+    read(t)?
+        .first()
+        .map(|v| f64::from(*v))
+        .ok_or_else(|| TrainError::Backend("empty tensor".into()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::replay::Transition;
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn head() -> Head {
+        Head {
+            weight: vec![0.0; 2 * FEATURES],
+            bias: [0.5, 0.0],
+        }
+    }
+
+    /// A one-state bandit: feature 1.0 in slot 0; reward = 1 - (steering - 0.3)^2, terminal.
+    fn bandit(rng: &mut ChaCha8Rng) -> Replay {
+        let mut r = Replay::new(10_000);
+        let mut f = vec![0.0; FEATURES];
+        f[0] = 1.0;
+        for _ in 0..2000 {
+            let a = [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)];
+            r.push(Transition {
+                features: f.clone(),
+                action: a,
+                reward: 1.0 - (a[1] - 0.3f32).powi(2),
+                next_features: f.clone(),
+                discount: 0.0,
+                demo: false,
+            });
+        }
+        r
+    }
+
+    #[test]
+    fn learns_the_best_action_of_a_bandit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let replay = bandit(&mut rng);
+        let cfg = AgentConfig {
+            batch: 64,
+            hidden: 32,
+            actor_lr: 3e-3,
+            bc_weight: 0.0,
+            anchor_weight: 0.0,
+            policy_delay: 1,
+            ..AgentConfig::default()
+        };
+        let mut agent = Agent::new(cfg, &head(), 0);
+        for i in 0..600 {
+            agent.update(&replay, i >= 200, &mut rng).unwrap();
+        }
+        let mut f = vec![0.0; FEATURES];
+        f[0] = 1.0;
+        let a = agent.head().unwrap().apply(&f);
+        assert!((a[1] - 0.3).abs() < 0.15, "steering {a:?}");
+    }
+
+    #[test]
+    fn the_q_filtered_bc_loss_pulls_towards_demonstrations() {
+        // Only demonstrations, all with steering -0.5 and the best reward: with BC the actor
+        // moves there from 0.
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let mut replay = bandit(&mut rng);
+        let mut f = vec![0.0; FEATURES];
+        f[0] = 1.0;
+        for _ in 0..500 {
+            replay.push(Transition {
+                features: f.clone(),
+                action: [0.5, -0.5],
+                reward: 1.0,
+                next_features: f.clone(),
+                discount: 0.0,
+                demo: true,
+            });
+        }
+        let cfg = AgentConfig {
+            batch: 64,
+            hidden: 32,
+            actor_lr: 3e-3,
+            bc_weight: 5.0,
+            q_filter: false,
+            policy_delay: 1,
+            ..AgentConfig::default()
+        };
+        let mut agent = Agent::new(cfg, &head(), 0);
+        for _ in 0..300 {
+            agent.update(&replay, true, &mut rng).unwrap();
+        }
+        let a = agent.head().unwrap().apply(&f);
+        assert!(a[1] < -0.2, "steering {a:?}");
+    }
+}

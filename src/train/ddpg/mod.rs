@@ -1,0 +1,459 @@
+//! DDPG fine-tuning in the simulator, bootstrapped as in the paper: owns the training loop
+//! of `jetpilot train ddpg`.
+//!
+//! ```text
+//! actor  <- the imitation policy (--init), or a random ResNet-18 (from scratch)
+//! replay <- the demonstrations with their rewards, kept for good (DDPGfD)
+//! critic warm-up: `warmup_updates` critic-only updates on the demonstrations
+//! evaluate (the 600 s protocol) -> best.onnx
+//! repeat until the wall-clock budget or the episode limit:
+//!     one episode: frame -> frozen backbone -> actor + exploration noise -> Env::step,
+//!                  n-step transitions into the replay; leaving the road ends it
+//!     updates between episodes: updates_per_step x the episode's steps
+//!     every `eval_every` episodes: evaluate; a higher autonomy (then more rewards)
+//!     replaces best.onnx
+//! ```
+//!
+//! The backbone is frozen (the CPU default): features are computed once per frame on ONNX
+//! Runtime, and only the actor's `fc` and the critics train. Files in the output folder:
+//! `ddpg_episodes.csv`, `ddpg_eval.csv`, `ddpg_curve.png`, `best.onnx`, `last.onnx`.
+
+pub mod agent;
+pub mod demos;
+pub mod eval;
+pub mod features;
+pub mod nets;
+pub mod noise;
+pub mod replay;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use self::agent::{Agent, AgentConfig};
+use self::eval::{EvalOutcome, evaluate};
+use self::features::{Backbone, FEATURES, FeatureActor, Head};
+use self::noise::{Noise, NoiseKind};
+use self::replay::{NStep, Replay, Step};
+use super::curve::{CsvLog, Series, plot_png, read_csv};
+use super::data::LabelMap;
+use super::export::write_weights;
+use super::{TrainError, load_onnx};
+use crate::config::Config;
+use crate::policy::onnx::Resnet18Weights;
+use crate::policy::{ModelContract, OutputKind, Preprocessor};
+use crate::sim::env::Env;
+
+/// Settings of one DDPG run.
+#[derive(Debug, Clone)]
+pub struct DdpgOptions {
+    pub out: PathBuf,
+    /// The simulator config (`[sim]`, `[control]` gains, `[model]` contract defaults).
+    pub cfg: Config,
+    /// The network's input size when starting from scratch (an `--init` model keeps its own).
+    pub input_size: u32,
+    pub init: Option<PathBuf>,
+    pub demos: Vec<PathBuf>,
+    pub seed: u64,
+    /// Wall-clock budget in seconds (evaluations included).
+    pub budget_s: f64,
+    pub max_episodes: usize,
+    /// Steps per training episode (then it is cut).
+    pub episode_steps: u64,
+    pub agent: AgentConfig,
+    pub n_step: usize,
+    pub noise: NoiseKind,
+    /// Exploration sigma per action component `[speed, steering]`.
+    pub sigma: [f32; 2],
+    pub updates_per_step: f32,
+    pub warmup_updates: usize,
+    pub replay_capacity: usize,
+    pub eval_every: usize,
+    pub eval_seconds: f64,
+    /// Stop once an evaluation has no intervention.
+    pub stop_at_full_autonomy: bool,
+    pub ort_threads: usize,
+}
+
+impl DdpgOptions {
+    pub fn new(out: PathBuf, cfg: Config) -> Self {
+        Self {
+            out,
+            input_size: 96,
+            cfg,
+            init: None,
+            demos: Vec::new(),
+            seed: 0,
+            budget_s: 1800.0,
+            max_episodes: usize::MAX,
+            episode_steps: 900,
+            agent: AgentConfig::default(),
+            n_step: 3,
+            noise: NoiseKind::Gaussian,
+            sigma: [0.1, 0.1],
+            updates_per_step: 0.5,
+            warmup_updates: 1000,
+            replay_capacity: 100_000,
+            eval_every: 10,
+            eval_seconds: 600.0,
+            stop_at_full_autonomy: false,
+            ort_threads: 2,
+        }
+    }
+}
+
+/// One training episode's numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeStats {
+    pub episode: usize,
+    pub steps: u64,
+    pub ret: f64,
+    pub rewards: u64,
+    pub interventions: u32,
+    pub env_seconds: f64,
+    pub update_seconds: f64,
+    pub critic_loss: f64,
+    pub mean_q: f64,
+}
+
+/// One evaluation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalPoint {
+    pub episode: usize,
+    pub env_steps: u64,
+    pub wall_s: f64,
+    pub outcome: EvalOutcome,
+}
+
+/// What a run reached.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DdpgReport {
+    pub episodes: usize,
+    pub env_steps: u64,
+    pub updates: u64,
+    pub wall_s: f64,
+    /// Environment steps per second of training time (episodes + updates, evaluations not
+    /// counted).
+    pub steps_per_s: f64,
+    pub evals: Vec<EvalPoint>,
+    pub best: Option<EvalPoint>,
+    pub best_path: PathBuf,
+    pub demo_transitions: usize,
+    pub plot_warning: Option<String>,
+}
+
+pub const EPISODE_HEADER: [&str; 9] = [
+    "episode",
+    "steps",
+    "return",
+    "rewards",
+    "interventions",
+    "env_seconds",
+    "update_seconds",
+    "critic_loss",
+    "mean_q",
+];
+pub const EVAL_HEADER: [&str; 8] = [
+    "episode",
+    "env_steps",
+    "wall_s",
+    "interventions",
+    "autonomy_percent",
+    "rewards",
+    "mean_reward",
+    "laps",
+];
+
+pub fn best_path(out: &Path) -> PathBuf {
+    out.join("best.onnx")
+}
+pub fn episodes_csv(out: &Path) -> PathBuf {
+    out.join("ddpg_episodes.csv")
+}
+pub fn eval_csv(out: &Path) -> PathBuf {
+    out.join("ddpg_eval.csv")
+}
+pub fn png_path(out: &Path) -> PathBuf {
+    out.join("ddpg_curve.png")
+}
+
+/// The starting weights and contract.
+fn initial(opts: &DdpgOptions) -> Result<(Resnet18Weights, ModelContract), TrainError> {
+    match &opts.init {
+        Some(path) => {
+            let (model, contract) = load_onnx(path, &burn::tensor::Device::flex())?;
+            if contract.output != OutputKind::SpeedSteering {
+                return Err(TrainError::Data {
+                    path: path.display().to_string(),
+                    reason: format!(
+                        "DDPG's actions are (speed, steering); this model outputs {} (train it with --head speed-steering)",
+                        contract.output.as_str()
+                    ),
+                });
+            }
+            Ok((model.to_weights()?, contract))
+        }
+        None => {
+            let mut contract = opts.cfg.model.fallback_contract();
+            contract.input_size = opts.input_size;
+            contract.output = OutputKind::SpeedSteering;
+            Ok((Resnet18Weights::random(2, opts.seed), contract))
+        }
+    }
+}
+
+/// `a` clamped to the agent's bounds.
+fn clamp_action(a: [f32; 2], cfg: &AgentConfig) -> [f32; 2] {
+    [
+        a[0].clamp(cfg.low[0], cfg.high[0]),
+        a[1].clamp(cfg.low[1], cfg.high[1]),
+    ]
+}
+
+/// Runs DDPG; `on_episode` and `on_eval` see progress as it happens.
+pub fn train(
+    opts: &DdpgOptions,
+    mut on_episode: impl FnMut(&EpisodeStats),
+    mut on_eval: impl FnMut(&EvalPoint, bool),
+) -> Result<DdpgReport, TrainError> {
+    let started = Instant::now();
+    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::Data {
+        path: opts.out.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    let (base, contract) = initial(opts)?;
+    let mut backbone = Backbone::new(&base, &contract, opts.ort_threads)?;
+    let head = Head::from_weights(&base)?;
+    let mut cfg = opts.cfg.clone();
+    cfg.sim.seed = opts.seed;
+    let labels = LabelMap::new(OutputKind::SpeedSteering, &cfg.control.gains());
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+
+    let mut replay = Replay::new(opts.replay_capacity);
+    let demo = demos::load(
+        &opts.demos,
+        &mut backbone,
+        &contract,
+        &labels,
+        opts.n_step,
+        opts.agent.gamma,
+    );
+    let demo_transitions = match demo {
+        Ok(ts) => {
+            let n = ts.len();
+            for t in ts {
+                replay.push(t);
+            }
+            n
+        }
+        Err(e) if opts.demos.is_empty() => {
+            tracing::debug!("no demonstrations: {e}");
+            0
+        }
+        Err(e) => return Err(e),
+    };
+
+    let mut agent = Agent::new(opts.agent.clone(), &head, opts.seed);
+    // Critic warm-up on the demonstrations: the actor stays the imitation policy.
+    if !replay.is_empty() {
+        for _ in 0..opts.warmup_updates {
+            agent.update(&replay, false, &mut rng)?;
+        }
+    }
+
+    let mut episodes_log = CsvLog::open(&episodes_csv(&opts.out), &EPISODE_HEADER, false)?;
+    let mut eval_log = CsvLog::open(&eval_csv(&opts.out), &EVAL_HEADER, false)?;
+    let mut env = Env::new(&cfg, opts.episode_steps).map_err(|e| TrainError::Backend(e.to_string()))?;
+    let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
+    let mut pre = Preprocessor::new(&contract);
+    let mut noise = Noise::new(opts.noise, opts.sigma, 0.15 * cfg.sim.control_hz, 1.0 / cfg.sim.control_hz);
+    let count_threshold = cfg.sim.reward.count_threshold;
+
+    let mut evals = Vec::new();
+    let mut best: Option<EvalPoint> = None;
+    let mut env_steps = 0u64;
+    let mut updates = 0u64;
+    let mut train_seconds = 0.0f64;
+    let mut episode = 0usize;
+    let mut current = head.clone();
+
+    let mut run_eval = |episode: usize,
+                        env_steps: u64,
+                        current: &Head,
+                        backbone: &mut Backbone,
+                        best: &mut Option<EvalPoint>,
+                        evals: &mut Vec<EvalPoint>,
+                        eval_log: &mut CsvLog|
+     -> Result<bool, TrainError> {
+        let mut actor = FeatureActor::new(backbone, current, &contract);
+        let outcome = evaluate(&opts.cfg, &mut actor, opts.eval_seconds)?;
+        let point = EvalPoint {
+            episode,
+            env_steps,
+            wall_s: started.elapsed().as_secs_f64(),
+            outcome,
+        };
+        eval_log.row(&[
+            episode as f64,
+            env_steps as f64,
+            point.wall_s,
+            f64::from(outcome.interventions),
+            f64::from(outcome.autonomy_percent),
+            outcome.rewards as f64,
+            outcome.mean_reward,
+            outcome.laps,
+        ])?;
+        let better = match best {
+            None => true,
+            Some(b) => {
+                (outcome.autonomy_percent, outcome.rewards)
+                    > (b.outcome.autonomy_percent, b.outcome.rewards)
+            }
+        };
+        if better {
+            write_weights(&current.into_weights(&base), &contract, &best_path(&opts.out))?;
+            *best = Some(point);
+        }
+        evals.push(point);
+        on_eval(&point, better);
+        Ok(opts.stop_at_full_autonomy && outcome.interventions == 0)
+    };
+
+    let mut done_early = run_eval(0, 0, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+    let mut features = vec![0.0f32; FEATURES];
+    let mut next_features = vec![0.0f32; FEATURES];
+
+    while !done_early
+        && episode < opts.max_episodes
+        && started.elapsed().as_secs_f64() < opts.budget_s
+    {
+        episode += 1;
+        let t0 = Instant::now();
+        let obs = env.reset(None).map_err(|e| TrainError::Backend(e.to_string()))?;
+        let input = pre.run(w, h, obs).map_err(|e| TrainError::Backend(e.to_string()))?;
+        backbone.features(input, &mut features)?;
+        noise.reset();
+        let mut nstep = NStep::new(opts.n_step, opts.agent.gamma);
+        let mut stats = EpisodeStats {
+            episode,
+            steps: 0,
+            ret: 0.0,
+            rewards: 0,
+            interventions: 0,
+            env_seconds: 0.0,
+            update_seconds: 0.0,
+            critic_loss: f64::NAN,
+            mean_q: f64::NAN,
+        };
+        loop {
+            let a = current.apply(&features);
+            let n = noise.sample(&mut rng);
+            let action = clamp_action([a[0] + n[0], a[1] + n[1]], &opts.agent);
+            let o = env.step(action).map_err(|e| TrainError::Backend(e.to_string()))?;
+            let input = pre
+                .run(w, h, env.observation())
+                .map_err(|e| TrainError::Backend(e.to_string()))?;
+            backbone.features(input, &mut next_features)?;
+            stats.steps += 1;
+            stats.ret += f64::from(o.reward);
+            if o.reward >= count_threshold {
+                stats.rewards += 1;
+            }
+            let step = Step {
+                features: features.clone(),
+                action,
+                reward: o.reward,
+            };
+            if let Some(t) = nstep.push(step, &next_features, false) {
+                replay.push(t);
+            }
+            std::mem::swap(&mut features, &mut next_features);
+            if o.done || o.truncated {
+                if o.done {
+                    stats.interventions = 1;
+                }
+                for t in nstep.finish(&features, o.done, false) {
+                    replay.push(t);
+                }
+                break;
+            }
+        }
+        env_steps += stats.steps;
+        stats.env_seconds = t0.elapsed().as_secs_f64();
+
+        // Updates between episodes.
+        let t1 = Instant::now();
+        let n_updates = (stats.steps as f32 * opts.updates_per_step).round() as usize;
+        let (mut closs, mut q, mut counted) = (0.0, 0.0, 0usize);
+        if replay.len() >= opts.agent.batch {
+            for _ in 0..n_updates {
+                let u = agent.update(&replay, true, &mut rng)?;
+                closs += u.critic_loss;
+                q += u.mean_q;
+                counted += 1;
+            }
+            updates += counted as u64;
+            current = agent.head()?;
+        }
+        if counted > 0 {
+            stats.critic_loss = closs / counted as f64;
+            stats.mean_q = q / counted as f64;
+        }
+        stats.update_seconds = t1.elapsed().as_secs_f64();
+        train_seconds += t0.elapsed().as_secs_f64();
+        episodes_log.row(&[
+            episode as f64,
+            stats.steps as f64,
+            stats.ret,
+            stats.rewards as f64,
+            f64::from(stats.interventions),
+            stats.env_seconds,
+            stats.update_seconds,
+            stats.critic_loss,
+            stats.mean_q,
+        ])?;
+        on_episode(&stats);
+
+        if opts.eval_every > 0 && episode % opts.eval_every == 0 {
+            done_early = run_eval(episode, env_steps, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+        }
+    }
+    // The last policy, and a final evaluation when the last episodes were not evaluated.
+    write_weights(&current.into_weights(&base), &contract, &opts.out.join("last.onnx"))?;
+    if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
+        run_eval(episode, env_steps, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+    }
+    let plot_warning = plot_curve(&opts.out)?;
+    Ok(DdpgReport {
+        episodes: episode,
+        env_steps,
+        updates,
+        wall_s: started.elapsed().as_secs_f64(),
+        steps_per_s: env_steps as f64 / train_seconds.max(1e-9),
+        evals,
+        best,
+        best_path: best_path(&opts.out),
+        demo_transitions,
+        plot_warning,
+    })
+}
+
+/// `ddpg_curve.png`: the autonomy value of each evaluation against environment steps.
+fn plot_curve(out: &Path) -> Result<Option<String>, TrainError> {
+    let (_, rows) = read_csv(&eval_csv(out))?;
+    let autonomy = Series {
+        name: "autonomy %".into(),
+        points: rows.iter().map(|r| (r[1], r[4])).collect(),
+    };
+    Ok(plot_png(
+        &png_path(out),
+        "DDPG: autonomy in the 600 s test",
+        "environment steps",
+        "autonomy (%)",
+        &[autonomy],
+        false,
+        (800, 500),
+    )?)
+}

@@ -1,0 +1,450 @@
+//! Imitation learning (behaviour cloning): owns the training loop of `jetpilot train il`.
+//!
+//! The paper's recipe by default: a 90/10 train/test split, batch 64, 50 epochs, mean squared
+//! error on the two outputs, Adam (lr 1e-3), with JetBot's augmentation (horizontal flip that
+//! negates the steering label, colour jitter 0.3). Each epoch:
+//!
+//! 1. a seeded shuffle of the training indices, then batches built on a prefetch thread
+//!    (augmentation runs while the network trains on the previous batch) from frames
+//!    decoded once and cached at the input size;
+//! 2. one Adam step per batch on the autodiff device (BatchNorm on batch statistics);
+//! 3. the test loss with the running statistics, without augmentation;
+//! 4. a CSV row, the learning-curve PNG, `last.onnx` always and `best.onnx` when the test
+//!    loss is the best so far, then `il_state.json` (written last: a run killed before it
+//!    resumes from the previous epoch).
+//!
+//! `--resume` continues after the last finished epoch from `last.onnx`; Adam's moment
+//! estimates start again from zero (burn keys optimiser state by parameter ids that a
+//! reloaded model does not keep).
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::sync_channel;
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::augment::{Augment, Batch, make_batch};
+use super::curve::{CsvLog, Series, plot_png, read_csv};
+use super::data::{Dataset, LabelMap, split};
+use super::export::write_actor;
+use super::{Resnet18, TrainError, load_onnx};
+use crate::policy::ModelContract;
+use crate::policy::onnx::Resnet18Weights;
+
+/// Settings of one imitation-learning run.
+#[derive(Debug, Clone)]
+pub struct IlOptions {
+    pub out: PathBuf,
+    pub contract: ModelContract,
+    pub labels: LabelMap,
+    /// Start from these weights (our export or a torchvision-layout ResNet-18); else random.
+    pub init: Option<PathBuf>,
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub test_fraction: f32,
+    pub seed: u64,
+    pub augment: Augment,
+    pub resume: bool,
+    pub progress: bool,
+}
+
+impl IlOptions {
+    /// The paper's recipe for `contract`, writing into `out`.
+    pub fn paper(out: PathBuf, contract: ModelContract, labels: LabelMap) -> Self {
+        Self {
+            out,
+            contract,
+            labels,
+            init: None,
+            epochs: 50,
+            batch: 64,
+            lr: 1e-3,
+            test_fraction: 0.1,
+            seed: 0,
+            augment: Augment::JETBOT,
+            resume: false,
+            progress: true,
+        }
+    }
+}
+
+/// What is kept between runs for `--resume`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IlState {
+    pub epochs_done: usize,
+    pub best_epoch: usize,
+    pub best_test_loss: f64,
+    pub seed: u64,
+    pub samples: usize,
+    pub seconds: f64,
+}
+
+/// One epoch's numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpochStats {
+    pub epoch: usize,
+    pub train_loss: f64,
+    pub test_loss: f64,
+    pub images_per_s: f64,
+    pub seconds: f64,
+}
+
+/// The outcome of a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IlReport {
+    pub state: IlState,
+    pub last: Option<EpochStats>,
+    pub train_samples: usize,
+    pub test_samples: usize,
+    pub best_path: PathBuf,
+    /// Set when the PNG curve was drawn without text (no font found).
+    pub plot_warning: Option<String>,
+}
+
+pub const CSV_HEADER: [&str; 5] = ["epoch", "train_loss", "test_loss", "images_per_s", "seconds"];
+
+pub fn best_path(out: &Path) -> PathBuf {
+    out.join("best.onnx")
+}
+fn last_path(out: &Path) -> PathBuf {
+    out.join("last.onnx")
+}
+fn state_path(out: &Path) -> PathBuf {
+    out.join("il_state.json")
+}
+pub fn csv_path(out: &Path) -> PathBuf {
+    out.join("il_log.csv")
+}
+pub fn png_path(out: &Path) -> PathBuf {
+    out.join("il_curve.png")
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |e| TrainError::Data {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    }
+}
+
+fn read_state(path: &Path) -> Result<IlState, TrainError> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Data {
+        path: path.display().to_string(),
+        reason: format!("cannot read the training state: {e}"),
+    })
+}
+
+fn write_state(path: &Path, state: &IlState) -> Result<(), TrainError> {
+    let tmp = path.with_extension("json.tmp");
+    let text = serde_json::to_string_pretty(state).map_err(|e| TrainError::Data {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    std::fs::write(&tmp, text).map_err(io_err(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io_err(path))
+}
+
+/// The network to start from: `last.onnx` when resuming, else `--init`, else random.
+fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState), TrainError> {
+    let fresh = IlState {
+        epochs_done: 0,
+        best_epoch: 0,
+        best_test_loss: f64::INFINITY,
+        seed: opts.seed,
+        samples: 0,
+        seconds: 0.0,
+    };
+    if opts.resume && state_path(&opts.out).is_file() {
+        let state = read_state(&state_path(&opts.out))?;
+        let (model, _) = load_onnx(&last_path(&opts.out), device)?;
+        return Ok((model, state));
+    }
+    let model = match &opts.init {
+        Some(path) => {
+            let (model, _) = load_onnx(path, device)?;
+            if model.num_outputs() != 2 {
+                return Err(TrainError::TensorShape {
+                    name: format!("{}: fc.weight", path.display()),
+                    expected: "2 outputs".into(),
+                    found: format!("{} outputs", model.num_outputs()),
+                });
+            }
+            model
+        }
+        None => Resnet18::from_weights(&Resnet18Weights::random(2, opts.seed), device)?,
+    };
+    Ok((model, fresh))
+}
+
+fn to_tensors(b: &Batch, size: usize, device: &Device) -> (Tensor<4>, Tensor<2>) {
+    let x = Tensor::<4>::from_data(
+        TensorData::new(b.inputs.clone(), [b.len, 3, size, size]),
+        device,
+    );
+    let y = Tensor::<2>::from_data(TensorData::new(b.labels.clone(), [b.len, 2]), device);
+    (x, y)
+}
+
+/// Mean squared error over every output of a batch.
+fn mse(pred: Tensor<2>, target: Tensor<2>) -> Tensor<1> {
+    (pred - target).powi_scalar(2).mean()
+}
+
+fn scalar(t: Tensor<1>) -> Result<f64, TrainError> {
+    let v = t
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| TrainError::Backend(format!("{e:?}")))?;
+    v.first()
+        .map(|x| f64::from(*x))
+        .ok_or_else(|| TrainError::Backend("empty loss tensor".into()))
+}
+
+/// The mean loss of `model` (evaluation form) on `idx`, without augmentation.
+pub fn evaluate(
+    model: &Resnet18,
+    data: &Dataset,
+    idx: &[usize],
+    contract: &ModelContract,
+    batch: usize,
+    device: &Device,
+) -> Result<f64, TrainError> {
+    let eval = model.clone().valid();
+    let size = data.size as usize;
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for chunk in idx.chunks(batch.max(1)) {
+        let b = make_batch(&data.samples, chunk, data.size, contract, &Augment::NONE, 0, &mut rng);
+        let (x, y) = to_tensors(&b, size, device);
+        sum += scalar(mse(eval.forward(x), y))? * chunk.len() as f64;
+        n += chunk.len();
+    }
+    Ok(if n == 0 { f64::NAN } else { sum / n as f64 })
+}
+
+/// Batches of one epoch: the seeded shuffle, cut into `batch`-sized pieces (a last piece of
+/// one image is dropped: BatchNorm needs two).
+pub fn epoch_batches(train: &[usize], batch: usize, seed: u64, epoch: usize) -> Vec<Vec<usize>> {
+    let mut order = train.to_vec();
+    order.shuffle(&mut ChaCha8Rng::seed_from_u64(
+        seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+    ));
+    order
+        .chunks(batch.max(2))
+        .filter(|c| c.len() >= 2)
+        .map(<[usize]>::to_vec)
+        .collect()
+}
+
+/// One Adam step on a batch; returns the updated model and the batch loss.
+fn train_step(
+    model: Resnet18,
+    optim: &mut burn::optim::ModuleOptimizer,
+    x: Tensor<4>,
+    y: Tensor<2>,
+    lr: f64,
+) -> Result<(Resnet18, f64), TrainError> {
+    let loss = mse(model.forward(x), y);
+    let value = scalar(loss.clone().detach())?;
+    let grads = GradientsParams::from_grads(loss.backward(), &model);
+    Ok((optim.step(lr, model, grads), value))
+}
+
+/// The framework's raw training throughput in images/s: `steps` Adam steps (after one
+/// untimed step) on one constant batch, with no data pipeline at all; the yardstick for
+/// [`train`]'s images/s.
+pub fn raw_throughput(size: u32, batch: usize, steps: usize) -> Result<f64, TrainError> {
+    let device = Device::flex().autodiff();
+    let mut model = Resnet18::from_weights(&Resnet18Weights::random(2, 0), &device)?;
+    let mut optim = AdamConfig::new().init();
+    let s = size as usize;
+    let x = Tensor::<4>::from_data(
+        TensorData::new(vec![0.5f32; batch * 3 * s * s], [batch, 3, s, s]),
+        &device,
+    );
+    let y = Tensor::<2>::from_data(TensorData::new(vec![0.1f32; batch * 2], [batch, 2]), &device);
+    let mut t0 = Instant::now();
+    for i in 0..=steps {
+        if i == 1 {
+            t0 = Instant::now();
+        }
+        let (next, _) = train_step(model, &mut optim, x.clone(), y.clone(), 1e-4)?;
+        model = next;
+    }
+    Ok((steps * batch) as f64 / t0.elapsed().as_secs_f64().max(1e-9))
+}
+
+/// Runs imitation learning on `data`; `on_epoch` sees every finished epoch.
+pub fn train(
+    data: &Dataset,
+    opts: &IlOptions,
+    mut on_epoch: impl FnMut(&EpochStats),
+) -> Result<IlReport, TrainError> {
+    std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
+    let device = Device::flex().autodiff();
+    let (mut model, mut state) = initial_model(opts, &device)?;
+    state.samples = data.samples.len();
+    let (train_idx, test_idx) = split(data.samples.len(), opts.test_fraction, opts.seed);
+    if train_idx.len() < 2 {
+        return Err(TrainError::Data {
+            path: opts.out.display().to_string(),
+            reason: format!(
+                "{} demonstrations leave {} for training; at least 2 are needed",
+                data.samples.len(),
+                train_idx.len()
+            ),
+        });
+    }
+    let resuming = state.epochs_done > 0;
+    let mut log = CsvLog::open(&csv_path(&opts.out), &CSV_HEADER, resuming)?;
+    let mut optim = AdamConfig::new().init();
+    let size = data.size as usize;
+    let mirrored = opts.labels.mirrored_component();
+    let mut last = None;
+    let mut plot_warning = None;
+    let started = Instant::now();
+    let seconds_before = state.seconds;
+
+    for epoch in state.epochs_done + 1..=opts.epochs {
+        let t0 = Instant::now();
+        let batches = epoch_batches(&train_idx, opts.batch, opts.seed, epoch);
+        let images: usize = batches.iter().map(Vec::len).sum();
+        let bar = progress_bar(opts.progress, batches.len() as u64, epoch, opts.epochs);
+        let (tx, rx) = sync_channel::<Batch>(2);
+        let (mut loss_sum, mut seen) = (0.0, 0usize);
+        let result: Result<(), TrainError> = std::thread::scope(|scope| {
+            let samples = &data.samples;
+            let contract = &opts.contract;
+            let augment = opts.augment;
+            let seed = opts.seed;
+            let batches = &batches;
+            scope.spawn(move || {
+                let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_add(epoch as u64 * 7919));
+                for idx in batches {
+                    let b = make_batch(samples, idx, data.size, contract, &augment, mirrored, &mut rng);
+                    if tx.send(b).is_err() {
+                        return; // the trainer stopped early (an error)
+                    }
+                }
+            });
+            for b in rx.iter() {
+                let (x, y) = to_tensors(&b, size, &device);
+                let (next, value) = train_step(model.clone(), &mut optim, x, y, opts.lr)?;
+                if !value.is_finite() {
+                    return Err(TrainError::Diverged { epoch, loss: value });
+                }
+                model = next;
+                loss_sum += value * b.len as f64;
+                seen += b.len;
+                let rate = seen as f64 / t0.elapsed().as_secs_f64().max(1e-9);
+                bar.set_message(format!("loss {:.4}  {rate:.1} img/s", loss_sum / seen as f64));
+                bar.inc(1);
+            }
+            Ok(())
+        });
+        result?;
+        bar.finish_and_clear();
+        let train_seconds = t0.elapsed().as_secs_f64();
+        let train_loss = loss_sum / seen.max(1) as f64;
+        let eval_device = device.clone().inner();
+        let test_loss = if test_idx.is_empty() {
+            train_loss
+        } else {
+            let eval_model = model.clone().valid();
+            evaluate(&eval_model, data, &test_idx, &opts.contract, opts.batch, &eval_device)?
+        };
+        let stats = EpochStats {
+            epoch,
+            train_loss,
+            test_loss,
+            images_per_s: images as f64 / train_seconds.max(1e-9),
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        log.row(&[
+            epoch as f64,
+            train_loss,
+            test_loss,
+            stats.images_per_s,
+            stats.seconds,
+        ])?;
+        write_actor(&model, &opts.contract, &last_path(&opts.out))?;
+        if test_loss < state.best_test_loss {
+            state.best_test_loss = test_loss;
+            state.best_epoch = epoch;
+            write_actor(&model, &opts.contract, &best_path(&opts.out))?;
+        }
+        state.epochs_done = epoch;
+        state.seconds = seconds_before + started.elapsed().as_secs_f64();
+        write_state(&state_path(&opts.out), &state)?;
+        plot_warning = plot_curve(&opts.out)?;
+        on_epoch(&stats);
+        last = Some(stats);
+    }
+    Ok(IlReport {
+        state,
+        last,
+        train_samples: train_idx.len(),
+        test_samples: test_idx.len(),
+        best_path: best_path(&opts.out),
+        plot_warning,
+    })
+}
+
+/// Redraws `il_curve.png` from the CSV (so a resumed run's curve covers every epoch).
+fn plot_curve(out: &Path) -> Result<Option<String>, TrainError> {
+    let (_, rows) = read_csv(&csv_path(out))?;
+    let series = |name: &str, col: usize| Series {
+        name: name.into(),
+        points: rows.iter().map(|r| (r[0], r[col])).collect(),
+    };
+    Ok(plot_png(
+        &png_path(out),
+        "Imitation learning",
+        "epoch",
+        "MSE loss",
+        &[series("train", 1), series("test", 2)],
+        true,
+        (800, 500),
+    )?)
+}
+
+fn progress_bar(show: bool, len: u64, epoch: usize, epochs: usize) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{prefix} [{bar:30}] {pos}/{len} batches {msg} ({elapsed})",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(format!("epoch {epoch}/{epochs}"));
+    bar
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn epoch_batches_cover_the_training_set_once_and_are_seeded() {
+        let train: Vec<usize> = (0..10).collect();
+        let b = epoch_batches(&train, 4, 3, 1);
+        assert_eq!(b.iter().map(Vec::len).collect::<Vec<_>>(), vec![4, 4, 2]);
+        let mut all: Vec<usize> = b.concat();
+        all.sort();
+        assert_eq!(all, train);
+        assert_eq!(b, epoch_batches(&train, 4, 3, 1));
+        assert_ne!(b, epoch_batches(&train, 4, 3, 2), "a new order each epoch");
+        // 9 = 4 + 4 + 1: the single image is dropped.
+        assert_eq!(epoch_batches(&(0..9).collect::<Vec<_>>(), 4, 0, 1).len(), 2);
+    }
+}

@@ -1,0 +1,264 @@
+//! The trainer end to end on small data: `jetpilot train il` on a simulated expert's tub
+//! (files, curve, resume, reproducibility, an export ONNX Runtime runs like burn), and
+//! `jetpilot train ddpg` from that policy with the demonstrations (its in-training
+//! evaluation drives exactly like `jetpilot eval` on the exported best.onnx).
+#![cfg(feature = "train")]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use jetpilot::policy::{OutputKind, Policy, Preprocessor};
+use jetpilot::train::load_onnx;
+
+const SIZE: u32 = 32;
+
+fn jetpilot(args: &[&str], extra: &[&Path]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+    cmd.arg("-q").args(args);
+    for p in extra {
+        cmd.arg(p);
+    }
+    cmd.output().expect("run jetpilot")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "stdout: {}\nstderr: {}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A sim config with a 32x32 camera and the gains config/sim.toml uses.
+fn sim_config(dir: &Path) -> PathBuf {
+    let path = dir.join("sim.toml");
+    std::fs::write(
+        &path,
+        "[control]\nspeed_gain = 0.5\nsteering_gain = 0.5\nsteering_kd = 0.1\n\
+         [model]\ninput_size = 32\noutput = \"speed_steering\"\n\
+         [sim.camera]\nwidth = 32\nheight = 32\n",
+    )
+    .unwrap();
+    path
+}
+
+/// The scripted expert's demonstrations: `seconds` of driving, 30 steps per second.
+fn demos(dir: &Path, cfg: &Path, seconds: &str) -> PathBuf {
+    let tub = dir.join("demos");
+    ok(&jetpilot(
+        &["sim", "--expert", "--seconds", seconds, "--config"],
+        &[cfg, Path::new("--record"), &tub],
+    ));
+    tub
+}
+
+fn il(cfg: &Path, tub: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["train", "il", "--batch", "8", "--seed", "3"];
+    args.extend_from_slice(extra);
+    jetpilot(
+        &args,
+        &[
+            Path::new("--config"),
+            cfg,
+            Path::new("--data"),
+            tub,
+            Path::new("--out"),
+            out,
+        ],
+    )
+}
+
+fn csv_rows(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(str::to_owned)
+        .collect()
+}
+
+/// Loss columns only (wall-clock columns differ between runs).
+fn losses(rows: &[String]) -> Vec<String> {
+    rows.iter()
+        .map(|r| r.split(',').take(3).collect::<Vec<_>>().join(","))
+        .collect()
+}
+
+#[test]
+fn imitation_learning_trains_resumes_reproduces_and_exports() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let tub = demos(dir.path(), &cfg, "2");
+
+    // Two epochs straight.
+    let a = dir.path().join("a");
+    let text = ok(&il(&cfg, &tub, &a, &["--epochs", "2"]));
+    assert!(text.contains("best test loss"), "{text}");
+    for f in ["best.onnx", "last.onnx", "il_log.csv", "il_curve.png", "il_state.json"] {
+        assert!(a.join(f).is_file(), "{f} missing");
+    }
+    let rows_a = csv_rows(&a.join("il_log.csv"));
+    assert_eq!(rows_a.len(), 2, "{rows_a:?}");
+    let png = image::open(a.join("il_curve.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (800, 500));
+
+    // The same seed gives the same losses; one epoch then --resume gives two rows.
+    let b = dir.path().join("b");
+    ok(&il(&cfg, &tub, &b, &["--epochs", "2"]));
+    assert_eq!(losses(&rows_a), losses(&csv_rows(&b.join("il_log.csv"))));
+    let c = dir.path().join("c");
+    ok(&il(&cfg, &tub, &c, &["--epochs", "1"]));
+    ok(&il(&cfg, &tub, &c, &["--epochs", "2", "--resume"]));
+    let rows_c = csv_rows(&c.join("il_log.csv"));
+    assert_eq!(rows_c.len(), 2, "{rows_c:?}");
+    assert_eq!(losses(&rows_a)[0], losses(&rows_c)[0], "epoch 1 is the same run");
+    let state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(c.join("il_state.json")).unwrap()).unwrap();
+    assert_eq!(state["epochs_done"], 2);
+
+    // The export: our contract, and ONNX Runtime agrees with burn on a demonstration frame.
+    let best = a.join("best.onnx");
+    let mut ort = common::load_ort(&best);
+    assert_eq!(ort.contract().output, OutputKind::SpeedSteering);
+    assert_eq!(ort.contract().input_size, SIZE);
+    let reader = jetpilot::dataset::tub::TubReader::open(&tub).unwrap();
+    let rec = reader.records().nth(5).unwrap();
+    let (w, h, rgb) = reader.load_rgb(rec).unwrap();
+    let mut pre = Preprocessor::new(ort.contract());
+    let input = pre.run(w, h, &rgb).unwrap().to_vec();
+    let want = ort.infer(&input).unwrap();
+    let device = Device::flex();
+    let (model, contract) = load_onnx(&best, &device).unwrap();
+    assert_eq!(contract.output, OutputKind::SpeedSteering);
+    let s = SIZE as usize;
+    let x = Tensor::<4>::from_data(TensorData::new(input, [1, 3, s, s]), &device);
+    let got = model
+        .valid()
+        .forward(x)
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .unwrap();
+    for i in 0..2 {
+        assert!((got[i] - want[i]).abs() <= 1e-4, "burn {got:?} vs ort {want:?}");
+    }
+}
+
+#[test]
+fn imitation_learning_refuses_bad_data_with_the_folder_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = il(&cfg, &empty, &dir.path().join("o"), &["--epochs", "1", "--head", "xy"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&*empty.display().to_string()), "{err}");
+    // An xy folder cannot train a speed_steering head.
+    let out = il(&cfg, &empty, &dir.path().join("o"), &["--epochs", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--head xy"), "{err}");
+}
+
+#[test]
+fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let tub = demos(dir.path(), &cfg, "2");
+    let il_out = dir.path().join("il");
+    ok(&il(&cfg, &tub, &il_out, &["--epochs", "1"]));
+    let init = il_out.join("best.onnx");
+
+    let run = |out: &Path| {
+        jetpilot(
+            &[
+                "train",
+                "ddpg",
+                "--episodes",
+                "3",
+                "--episode-steps",
+                "40",
+                "--eval-every",
+                "2",
+                "--eval-seconds",
+                "4",
+                "--warmup-updates",
+                "5",
+                "--batch",
+                "16",
+                "--seed",
+                "1",
+                "--threads",
+                "1",
+            ],
+            &[
+                Path::new("--sim"),
+                &cfg,
+                Path::new("--init"),
+                &init,
+                Path::new("--demos"),
+                &tub,
+                Path::new("--out"),
+                out,
+            ],
+        )
+    };
+    let a = dir.path().join("a");
+    let text = ok(&run(&a));
+    assert!(text.contains("demonstration transitions"), "{text}");
+    for f in ["best.onnx", "last.onnx", "ddpg_episodes.csv", "ddpg_eval.csv", "ddpg_curve.png"] {
+        assert!(a.join(f).is_file(), "{f} missing");
+    }
+    assert_eq!(csv_rows(&a.join("ddpg_episodes.csv")).len(), 3);
+    // Evaluations at episode 0, 2 and after the last (3).
+    let evals = csv_rows(&a.join("ddpg_eval.csv"));
+    assert_eq!(evals.len(), 3, "{evals:?}");
+
+    // Reproducible: the same seed, the same episodes (wall-clock columns aside).
+    let b = dir.path().join("b");
+    ok(&run(&b));
+    let cols = |rows: Vec<String>| -> Vec<String> {
+        rows.iter()
+            .map(|r| {
+                let v: Vec<&str> = r.split(',').collect();
+                [v[0], v[1], v[2], v[3], v[4], v[7], v[8]].join(",")
+            })
+            .collect()
+    };
+    assert_eq!(
+        cols(csv_rows(&a.join("ddpg_episodes.csv"))),
+        cols(csv_rows(&b.join("ddpg_episodes.csv")))
+    );
+
+    // The exported best policy, run by `jetpilot eval` on ONNX Runtime, drives exactly as the
+    // in-training evaluation that chose it.
+    let best_eval: Vec<f64> = {
+        let mut best: Option<Vec<f64>> = None;
+        for r in &evals {
+            let v: Vec<f64> = r.split(',').map(|x| x.parse().unwrap()).collect();
+            let better = match &best {
+                None => true,
+                Some(b) => (v[4], v[5]) > (b[4], b[5]),
+            };
+            if better {
+                best = Some(v);
+            }
+        }
+        best.unwrap()
+    };
+    let json = dir.path().join("eval.json");
+    ok(&jetpilot(
+        &["eval", "--seconds", "4", "--config"],
+        &[&cfg, Path::new("--model"), &a.join("best.onnx"), Path::new("--json"), &json],
+    ));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["interventions"].as_f64().unwrap(), best_eval[3], "{v}");
+    assert_eq!(v["rewards"].as_f64().unwrap(), best_eval[5], "{v}");
+}
