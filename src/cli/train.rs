@@ -109,7 +109,10 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         };
     }
     if !(0.0..1.0).contains(&args.test_fraction) {
-        anyhow::bail!("--test-fraction must be in 0..1, got {}", args.test_fraction);
+        anyhow::bail!(
+            "--test-fraction must be in 0..1, got {}",
+            args.test_fraction
+        );
     }
     let labels = LabelMap::new(contract.output, &cfg.control.gains());
     let threads = args.decode_threads.unwrap_or_else(|| {

@@ -135,9 +135,9 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
         a.target_noise = 0.0;
     }
     let bar = indicatif::ProgressBar::new(opts.budget_s.round() as u64);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "[{elapsed_precise}] [{bar:30}] {msg}",
-    ) {
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("[{elapsed_precise}] [{bar:30}] {msg}")
+    {
         bar.set_style(style.progress_chars("=> "));
     }
     let started = std::time::Instant::now();
@@ -151,7 +151,11 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
                 e.steps,
                 e.ret,
                 e.rewards,
-                if e.interventions > 0 { ", left the road" } else { "" }
+                if e.interventions > 0 {
+                    ", left the road"
+                } else {
+                    ""
+                }
             ));
             tracing::debug!(
                 episode = e.episode,

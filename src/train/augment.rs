@@ -138,8 +138,7 @@ pub fn write_input(pixels: &[u8], size: u32, contract: &ModelContract, d: &Draw,
 fn jitter_pixel(rgb: [f32; 3], d: &Draw, mean_gray: f32, sin_h: f32, cos_h: f32) -> [f32; 3] {
     let [mut r, mut g, mut b] = rgb.map(|v| (v * d.brightness).clamp(0.0, 1.0));
     if d.contrast != 1.0 {
-        [r, g, b] =
-            [r, g, b].map(|v| (mean_gray + (v - mean_gray) * d.contrast).clamp(0.0, 1.0));
+        [r, g, b] = [r, g, b].map(|v| (mean_gray + (v - mean_gray) * d.contrast).clamp(0.0, 1.0));
     }
     if d.saturation != 1.0 {
         let l = gray(r, g, b);
@@ -255,7 +254,11 @@ mod tests {
         };
         assert_eq!(b.labels, vec![0.7, -0.25]);
         // R plane, row 0: pixel 1 (0) then pixel 0 (255): (0 - .485)/.229, (1 - .485)/.229.
-        assert!((b.inputs[0] + 2.117_904).abs() < 1e-5, "{:?}", &b.inputs[..4]);
+        assert!(
+            (b.inputs[0] + 2.117_904).abs() < 1e-5,
+            "{:?}",
+            &b.inputs[..4]
+        );
         assert!((b.inputs[1] - 2.248_908).abs() < 1e-5);
         // Row 1: (10,20,30) then (255,255,255).
         assert!((b.inputs[2] - (10.0 / 255.0 - 0.485) / 0.229).abs() < 1e-5);

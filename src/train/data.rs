@@ -216,7 +216,10 @@ pub fn load(
     })
 }
 
-fn decode_part(part: &[(PathBuf, [f32; 2], bool)], contract: &ModelContract) -> Result<Vec<Sample>, TrainError> {
+fn decode_part(
+    part: &[(PathBuf, [f32; 2], bool)],
+    contract: &ModelContract,
+) -> Result<Vec<Sample>, TrainError> {
     let mut pre = Preprocessor::new(contract);
     let mut out = Vec::with_capacity(part.len());
     for (path, label, pixel_label) in part {
@@ -269,14 +272,26 @@ mod tests {
     fn speed_steering_labels_invert_the_law() {
         // left 0.6, right 0.4: throttle 0.5 / 0.5 = 1.0; angle 0.1 / 0.25 = 0.4.
         let l = map(OutputKind::SpeedSteering).speed_steering(0.6, 0.4);
-        assert!((l[0] - 1.0).abs() < 1e-6 && (l[1] - 0.4).abs() < 1e-6, "{l:?}");
+        assert!(
+            (l[0] - 1.0).abs() < 1e-6 && (l[1] - 0.4).abs() < 1e-6,
+            "{l:?}"
+        );
         // Faster than speed_gain allows: clamped to 1; reversing: 0.
-        assert_eq!(map(OutputKind::SpeedSteering).speed_steering(0.9, 0.9)[0], 1.0);
-        assert_eq!(map(OutputKind::SpeedSteering).speed_steering(-0.2, -0.2)[0], 0.0);
+        assert_eq!(
+            map(OutputKind::SpeedSteering).speed_steering(0.9, 0.9)[0],
+            1.0
+        );
+        assert_eq!(
+            map(OutputKind::SpeedSteering).speed_steering(-0.2, -0.2)[0],
+            0.0
+        );
         // And the law maps the label back to the same wheels:
         // speed = 0.5 * 0.8 = 0.4, steering = 0.25 * -0.2 = -0.05 -> (0.35, 0.45).
         let l = map(OutputKind::SpeedSteering).speed_steering(0.35, 0.45);
-        assert!((l[0] - 0.8).abs() < 1e-6 && (l[1] + 0.2).abs() < 1e-6, "{l:?}");
+        assert!(
+            (l[0] - 0.8).abs() < 1e-6 && (l[1] + 0.2).abs() < 1e-6,
+            "{l:?}"
+        );
     }
 
     #[test]
@@ -287,10 +302,16 @@ mod tests {
         assert_eq!(map(OutputKind::Xy).for_record(&rec), Some([0.3, -0.2]));
         // No wheels: user/angle and user/throttle give (0.6, 0.4).
         let l = map(OutputKind::SpeedSteering).for_record(&rec).unwrap();
-        assert!((l[0] - 1.0).abs() < 1e-6 && (l[1] - 0.4).abs() < 1e-6, "{l:?}");
+        assert!(
+            (l[0] - 1.0).abs() < 1e-6 && (l[1] - 0.4).abs() < 1e-6,
+            "{l:?}"
+        );
         rec.wheels = Some((0.35, 0.45));
         let l = map(OutputKind::SpeedSteering).for_record(&rec).unwrap();
-        assert!((l[0] - 0.8).abs() < 1e-6 && (l[1] + 0.2).abs() < 1e-6, "{l:?}");
+        assert!(
+            (l[0] - 0.8).abs() < 1e-6 && (l[1] + 0.2).abs() < 1e-6,
+            "{l:?}"
+        );
     }
 
     #[test]

@@ -12,7 +12,11 @@ use crate::policy::ModelContract;
 use crate::policy::onnx::{Resnet18Weights, resnet18_model, write_model};
 
 /// Writes `model` (in evaluation form: running statistics) to `path`.
-pub fn write_actor(model: &Resnet18, contract: &ModelContract, path: &Path) -> Result<(), TrainError> {
+pub fn write_actor(
+    model: &Resnet18,
+    contract: &ModelContract,
+    path: &Path,
+) -> Result<(), TrainError> {
     let weights = model.clone().valid().to_weights()?;
     write_weights(&weights, contract, path)
 }

@@ -108,7 +108,13 @@ pub struct IlReport {
     pub plot_warning: Option<String>,
 }
 
-pub const CSV_HEADER: [&str; 5] = ["epoch", "train_loss", "test_loss", "images_per_s", "seconds"];
+pub const CSV_HEADER: [&str; 5] = [
+    "epoch",
+    "train_loss",
+    "test_loss",
+    "images_per_s",
+    "seconds",
+];
 
 pub fn best_path(out: &Path) -> PathBuf {
     out.join("best.onnx")
@@ -222,7 +228,15 @@ pub fn evaluate(
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let (mut sum, mut n) = (0.0, 0usize);
     for chunk in idx.chunks(batch.max(1)) {
-        let b = make_batch(&data.samples, chunk, data.size, contract, &Augment::NONE, 0, &mut rng);
+        let b = make_batch(
+            &data.samples,
+            chunk,
+            data.size,
+            contract,
+            &Augment::NONE,
+            0,
+            &mut rng,
+        );
         let (x, y) = to_tensors(&b, size, device);
         sum += scalar(mse(eval.forward(x), y))? * chunk.len() as f64;
         n += chunk.len();
@@ -270,7 +284,10 @@ pub fn raw_throughput(size: u32, batch: usize, steps: usize) -> Result<f64, Trai
         TensorData::new(vec![0.5f32; batch * 3 * s * s], [batch, 3, s, s]),
         &device,
     );
-    let y = Tensor::<2>::from_data(TensorData::new(vec![0.1f32; batch * 2], [batch, 2]), &device);
+    let y = Tensor::<2>::from_data(
+        TensorData::new(vec![0.1f32; batch * 2], [batch, 2]),
+        &device,
+    );
     let mut t0 = Instant::now();
     for i in 0..=steps {
         if i == 1 {
@@ -329,7 +346,9 @@ pub fn train(
             scope.spawn(move || {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_add(epoch as u64 * 7919));
                 for idx in batches {
-                    let b = make_batch(samples, idx, data.size, contract, &augment, mirrored, &mut rng);
+                    let b = make_batch(
+                        samples, idx, data.size, contract, &augment, mirrored, &mut rng,
+                    );
                     if tx.send(b).is_err() {
                         return; // the trainer stopped early (an error)
                     }
@@ -345,7 +364,10 @@ pub fn train(
                 loss_sum += value * b.len as f64;
                 seen += b.len;
                 let rate = seen as f64 / t0.elapsed().as_secs_f64().max(1e-9);
-                bar.set_message(format!("loss {:.4}  {rate:.1} img/s", loss_sum / seen as f64));
+                bar.set_message(format!(
+                    "loss {:.4}  {rate:.1} img/s",
+                    loss_sum / seen as f64
+                ));
                 bar.inc(1);
             }
             Ok(())
@@ -359,7 +381,14 @@ pub fn train(
             train_loss
         } else {
             let eval_model = model.clone().valid();
-            evaluate(&eval_model, data, &test_idx, &opts.contract, opts.batch, &eval_device)?
+            evaluate(
+                &eval_model,
+                data,
+                &test_idx,
+                &opts.contract,
+                opts.batch,
+                &eval_device,
+            )?
         };
         let stats = EpochStats {
             epoch,

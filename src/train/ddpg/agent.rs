@@ -264,7 +264,11 @@ impl Agent {
         let mut actor_loss = None;
         if train_actor && self.updates % self.cfg.policy_delay.max(1) as u64 == 0 {
             actor_loss = Some(self.update_actor(&b)?);
-            self.actor_target = polyak_actor(&self.actor_target, &self.actor.clone().valid(), self.cfg.tau);
+            self.actor_target = polyak_actor(
+                &self.actor_target,
+                &self.actor.clone().valid(),
+                self.cfg.tau,
+            );
         }
         let online: Vec<Critic> = self.critics.iter().map(|c| c.clone().valid()).collect();
         for (t, o) in self.critic_targets.iter_mut().zip(&online) {
@@ -304,16 +308,23 @@ impl Agent {
         }
         // Keep the outputs inside the action range.
         let [n, _] = a_pi.dims();
-        let mid: Vec<f32> = (0..2).map(|i| (self.cfg.low[i] + self.cfg.high[i]) / 2.0).collect();
-        let half: Vec<f32> = (0..2).map(|i| (self.cfg.high[i] - self.cfg.low[i]) / 2.0).collect();
+        let mid: Vec<f32> = (0..2)
+            .map(|i| (self.cfg.low[i] + self.cfg.high[i]) / 2.0)
+            .collect();
+        let half: Vec<f32> = (0..2)
+            .map(|i| (self.cfg.high[i] - self.cfg.low[i]) / 2.0)
+            .collect();
         let mid = Tensor::<2>::from_data(TensorData::new(mid, [1, 2]), &self.device).expand([n, 2]);
-        let half = Tensor::<2>::from_data(TensorData::new(half, [1, 2]), &self.device).expand([n, 2]);
+        let half =
+            Tensor::<2>::from_data(TensorData::new(half, [1, 2]), &self.device).expand([n, 2]);
         let out_of_range = relu((a_pi - mid).abs() - half).powi_scalar(2).mean();
         loss = loss + out_of_range;
 
         let value = scalar(loss.clone().detach())?;
         let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
-        self.actor = self.actor_opt.step(self.cfg.actor_lr, self.actor.clone(), grads);
+        self.actor = self
+            .actor_opt
+            .step(self.cfg.actor_lr, self.actor.clone(), grads);
         Ok(value)
     }
 }

@@ -24,11 +24,19 @@ pub struct EvalOutcome {
 }
 
 /// Drives `policy` for `seconds` simulated seconds on `cfg`'s track.
-pub fn evaluate(cfg: &Config, policy: &mut dyn Policy, seconds: f64) -> Result<EvalOutcome, TrainError> {
+pub fn evaluate(
+    cfg: &Config,
+    policy: &mut dyn Policy,
+    seconds: f64,
+) -> Result<EvalOutcome, TrainError> {
     let sim_err = |e: String| TrainError::Backend(format!("simulator: {e}"));
     let mut rig = setup::build(cfg).map_err(|e| sim_err(e.to_string()))?;
     let params = DriveParams::from_config(cfg);
-    let processor = FrameProcessor::new(&policy.contract().clone(), params.gains, params.max_abs_output);
+    let processor = FrameProcessor::new(
+        &policy.contract().clone(),
+        params.gains,
+        params.max_abs_output,
+    );
     let mut pilot = Pilot::Model {
         policy,
         processor: Box::new(processor),

@@ -48,8 +48,10 @@ impl Backbone {
             "fc.weight".into(),
             (vec![FEATURES as i64, FEATURES as i64], eye),
         );
-        w.tensors
-            .insert("fc.bias".into(), (vec![FEATURES as i64], vec![0.0; FEATURES]));
+        w.tensors.insert(
+            "fc.bias".into(),
+            (vec![FEATURES as i64], vec![0.0; FEATURES]),
+        );
         let proto = resnet18_model(contract.input_size, &w, contract, env!("CARGO_PKG_VERSION"))?;
         let bytes = encode_model(&proto);
         let (_, env) = runtime::environment(None).map_err(ort_err)?;
@@ -98,10 +100,13 @@ impl Head {
     /// The head of `weights` (`fc.weight [2,512]`, `fc.bias [2]`, torchvision's layout).
     pub fn from_weights(weights: &Resnet18Weights) -> Result<Self, TrainError> {
         let get = |name: &str, len: usize| -> Result<Vec<f32>, TrainError> {
-            let (_, v) = weights.tensors.get(name).ok_or_else(|| TrainError::MissingTensor {
-                name: name.into(),
-                expected: format!("{len} values"),
-            })?;
+            let (_, v) = weights
+                .tensors
+                .get(name)
+                .ok_or_else(|| TrainError::MissingTensor {
+                    name: name.into(),
+                    expected: format!("{len} values"),
+                })?;
             if v.len() != len {
                 return Err(TrainError::TensorShape {
                     name: name.into(),

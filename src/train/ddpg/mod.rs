@@ -265,10 +265,16 @@ pub fn train(
 
     let mut episodes_log = CsvLog::open(&episodes_csv(&opts.out), &EPISODE_HEADER, false)?;
     let mut eval_log = CsvLog::open(&eval_csv(&opts.out), &EVAL_HEADER, false)?;
-    let mut env = Env::new(&cfg, opts.episode_steps).map_err(|e| TrainError::Backend(e.to_string()))?;
+    let mut env =
+        Env::new(&cfg, opts.episode_steps).map_err(|e| TrainError::Backend(e.to_string()))?;
     let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
     let mut pre = Preprocessor::new(&contract);
-    let mut noise = Noise::new(opts.noise, opts.sigma, 0.15 * cfg.sim.control_hz, 1.0 / cfg.sim.control_hz);
+    let mut noise = Noise::new(
+        opts.noise,
+        opts.sigma,
+        0.15 * cfg.sim.control_hz,
+        1.0 / cfg.sim.control_hz,
+    );
     let count_threshold = cfg.sim.reward.count_threshold;
 
     let mut evals = Vec::new();
@@ -313,7 +319,11 @@ pub fn train(
             }
         };
         if better {
-            write_weights(&current.into_weights(&base), &contract, &best_path(&opts.out))?;
+            write_weights(
+                &current.into_weights(&base),
+                &contract,
+                &best_path(&opts.out),
+            )?;
             *best = Some(point);
         }
         evals.push(point);
@@ -321,7 +331,15 @@ pub fn train(
         Ok(opts.stop_at_full_autonomy && outcome.interventions == 0)
     };
 
-    let mut done_early = run_eval(0, 0, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+    let mut done_early = run_eval(
+        0,
+        0,
+        &current,
+        &mut backbone,
+        &mut best,
+        &mut evals,
+        &mut eval_log,
+    )?;
     let mut features = vec![0.0f32; FEATURES];
     let mut next_features = vec![0.0f32; FEATURES];
 
@@ -331,8 +349,12 @@ pub fn train(
     {
         episode += 1;
         let t0 = Instant::now();
-        let obs = env.reset(None).map_err(|e| TrainError::Backend(e.to_string()))?;
-        let input = pre.run(w, h, obs).map_err(|e| TrainError::Backend(e.to_string()))?;
+        let obs = env
+            .reset(None)
+            .map_err(|e| TrainError::Backend(e.to_string()))?;
+        let input = pre
+            .run(w, h, obs)
+            .map_err(|e| TrainError::Backend(e.to_string()))?;
         backbone.features(input, &mut features)?;
         noise.reset();
         let mut nstep = NStep::new(opts.n_step, opts.agent.gamma);
@@ -351,7 +373,9 @@ pub fn train(
             let a = current.apply(&features);
             let n = noise.sample(&mut rng);
             let action = clamp_action([a[0] + n[0], a[1] + n[1]], &opts.agent);
-            let o = env.step(action).map_err(|e| TrainError::Backend(e.to_string()))?;
+            let o = env
+                .step(action)
+                .map_err(|e| TrainError::Backend(e.to_string()))?;
             let input = pre
                 .run(w, h, env.observation())
                 .map_err(|e| TrainError::Backend(e.to_string()))?;
@@ -417,13 +441,33 @@ pub fn train(
         on_episode(&stats);
 
         if opts.eval_every > 0 && episode % opts.eval_every == 0 {
-            done_early = run_eval(episode, env_steps, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+            done_early = run_eval(
+                episode,
+                env_steps,
+                &current,
+                &mut backbone,
+                &mut best,
+                &mut evals,
+                &mut eval_log,
+            )?;
         }
     }
     // The last policy, and a final evaluation when the last episodes were not evaluated.
-    write_weights(&current.into_weights(&base), &contract, &opts.out.join("last.onnx"))?;
+    write_weights(
+        &current.into_weights(&base),
+        &contract,
+        &opts.out.join("last.onnx"),
+    )?;
     if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
-        run_eval(episode, env_steps, &current, &mut backbone, &mut best, &mut evals, &mut eval_log)?;
+        run_eval(
+            episode,
+            env_steps,
+            &current,
+            &mut backbone,
+            &mut best,
+            &mut evals,
+            &mut eval_log,
+        )?;
     }
     let plot_warning = plot_curve(&opts.out)?;
     Ok(DdpgReport {

@@ -26,11 +26,8 @@ pub struct ActorHead {
 impl ActorHead {
     pub fn from_head(head: &Head, device: &Device) -> Self {
         // burn stores Linear weights [d_in, d_out]; Head holds torchvision's [2][512].
-        let w = Tensor::<2>::from_data(
-            TensorData::new(head.weight.clone(), [2, FEATURES]),
-            device,
-        )
-        .transpose();
+        let w = Tensor::<2>::from_data(TensorData::new(head.weight.clone(), [2, FEATURES]), device)
+            .transpose();
         let b = Tensor::<1>::from_data(TensorData::new(head.bias.to_vec(), [2]), device);
         Self {
             fc: Linear {
@@ -146,7 +143,11 @@ mod tests {
         let mut f = vec![0.0; FEATURES];
         f[0] = 3.0;
         f[1] = 4.0;
-        let out = read(actor.forward(Tensor::<2>::from_data(TensorData::new(f.clone(), [1, FEATURES]), &device))).unwrap();
+        let out = read(actor.forward(Tensor::<2>::from_data(
+            TensorData::new(f.clone(), [1, FEATURES]),
+            &device,
+        )))
+        .unwrap();
         assert_eq!(out, vec![6.5, -4.25]);
         assert_eq!(head.apply(&f), [6.5, -4.25]);
     }

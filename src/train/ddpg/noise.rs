@@ -70,7 +70,10 @@ mod tests {
         let xs: Vec<[f32; 2]> = (0..20000).map(|_| n.sample(&mut rng)).collect();
         let mean = xs.iter().map(|x| x[0]).sum::<f32>() / xs.len() as f32;
         let var = xs.iter().map(|x| (x[0] - mean).powi(2)).sum::<f32>() / xs.len() as f32;
-        let lag1 = xs.windows(2).map(|w| (w[0][0] - mean) * (w[1][0] - mean)).sum::<f32>()
+        let lag1 = xs
+            .windows(2)
+            .map(|w| (w[0][0] - mean) * (w[1][0] - mean))
+            .sum::<f32>()
             / (xs.len() as f32 * var);
         (mean, var.sqrt(), lag1)
     }
@@ -78,7 +81,10 @@ mod tests {
     #[test]
     fn gaussian_is_white_with_the_given_sigma() {
         let (mean, sd, lag1) = stats(NoiseKind::Gaussian);
-        assert!(mean.abs() < 0.01 && (sd - 0.2).abs() < 0.01 && lag1.abs() < 0.03, "{mean} {sd} {lag1}");
+        assert!(
+            mean.abs() < 0.01 && (sd - 0.2).abs() < 0.01 && lag1.abs() < 0.03,
+            "{mean} {sd} {lag1}"
+        );
     }
 
     #[test]

@@ -180,14 +180,26 @@ mod tests {
         assert!(n.push(step(2.0), &[3.0], false).is_none());
         let t = n.push(step(3.0), &[4.0], false).unwrap();
         // 1 + 0.5*2 + 0.25*3 = 2.75, bootstrapped from f_3 with 0.125.
-        assert_eq!((t.features[0], t.reward, t.next_features[0], t.discount), (1.0, 2.75, 4.0, 0.125));
+        assert_eq!(
+            (t.features[0], t.reward, t.next_features[0], t.discount),
+            (1.0, 2.75, 4.0, 0.125)
+        );
         let t = n.push(step(4.0), &[5.0], false).unwrap();
-        assert_eq!((t.features[0], t.reward, t.discount), (2.0, 2.0 + 1.5 + 1.0, 0.125));
+        assert_eq!(
+            (t.features[0], t.reward, t.discount),
+            (2.0, 2.0 + 1.5 + 1.0, 0.125)
+        );
         let rest = n.finish(&[5.0], true, false);
         // From step 3: 3 + 0.5*4 = 5, terminal; from step 4: 4, terminal.
         assert_eq!(rest.len(), 2);
-        assert_eq!((rest[0].features[0], rest[0].reward, rest[0].discount), (3.0, 5.0, 0.0));
-        assert_eq!((rest[1].features[0], rest[1].reward, rest[1].discount), (4.0, 4.0, 0.0));
+        assert_eq!(
+            (rest[0].features[0], rest[0].reward, rest[0].discount),
+            (3.0, 5.0, 0.0)
+        );
+        assert_eq!(
+            (rest[1].features[0], rest[1].reward, rest[1].discount),
+            (4.0, 4.0, 0.0)
+        );
         // Cut by the step limit instead: bootstrapped with gamma^m.
         let mut n = NStep::new(3, 0.5);
         n.push(step(1.0), &[2.0], false);
