@@ -276,7 +276,7 @@ fn train_step(
 /// untimed step) on one constant batch, with no data pipeline at all; the yardstick for
 /// [`train`]'s images/s.
 pub fn raw_throughput(size: u32, batch: usize, steps: usize) -> Result<f64, TrainError> {
-    let device = Device::flex().autodiff();
+    let device = super::device().autodiff();
     let mut model = Resnet18::from_weights(&Resnet18Weights::random(2, 0), &device)?;
     let mut optim = AdamConfig::new().init();
     let s = size as usize;
@@ -306,7 +306,7 @@ pub fn train(
     mut on_epoch: impl FnMut(&EpochStats),
 ) -> Result<IlReport, TrainError> {
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
-    let device = Device::flex().autodiff();
+    let device = super::device().autodiff();
     let (mut model, mut state) = initial_model(opts, &device)?;
     state.samples = data.samples.len();
     let (train_idx, test_idx) = split(data.samples.len(), opts.test_fraction, opts.seed);

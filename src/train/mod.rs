@@ -24,6 +24,13 @@ pub mod resnet;
 
 pub use resnet::{Resnet18, load_onnx};
 
+/// The device every training computation runs on (the one place to change for a GPU:
+/// enable burn's `cuda` or `wgpu` feature and return `Device::cuda(0)` / `Device::wgpu(..)`;
+/// the model code is device-generic). Today: burn's Flex CPU backend.
+pub fn device() -> burn::tensor::Device {
+    burn::tensor::Device::flex()
+}
+
 /// Errors of the trainer.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {

@@ -116,7 +116,7 @@ struct BatchTensors {
 impl Agent {
     /// Networks on `device` (an autodiff device), actor from `head`; seeds burn's RNG.
     pub fn new(cfg: AgentConfig, head: &Head, seed: u64) -> Self {
-        let inner = Device::flex();
+        let inner = crate::train::device();
         let device = inner.clone().autodiff();
         device.seed(seed);
         let actor = ActorHead::from_head(head, &device);

@@ -183,7 +183,7 @@ pub fn png_path(out: &Path) -> PathBuf {
 fn initial(opts: &DdpgOptions) -> Result<(Resnet18Weights, ModelContract), TrainError> {
     match &opts.init {
         Some(path) => {
-            let (model, contract) = load_onnx(path, &burn::tensor::Device::flex())?;
+            let (model, contract) = load_onnx(path, &super::device())?;
             if contract.output != OutputKind::SpeedSteering {
                 return Err(TrainError::Data {
                     path: path.display().to_string(),
