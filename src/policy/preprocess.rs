@@ -53,60 +53,23 @@ pub struct Preprocessor {
     source_channel: [usize; 3],
     /// Per tensor plane: `lut[p][v] = (v / 255 - mean[p]) / std[p]`.
     lut: [[f32; 256]; 3],
-    resizer: Resizer,
-    options: ResizeOptions,
-    /// The frame resized to `size x size`, RGB8; allocated once.
-    resized: Image<'static>,
+    scaler: Scaler,
     /// The NCHW tensor, `3 * size * size` values; allocated once.
     output: Vec<f32>,
 }
 
-impl std::fmt::Debug for Preprocessor {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Preprocessor")
-            .field("size", &self.size)
-            .field("source_channel", &self.source_channel)
-            .finish_non_exhaustive()
-    }
+/// Step 1's state: the resizer with its scratch buffers and the resized image (kept apart
+/// from the tables and the output so that both can be borrowed beside it).
+struct Scaler {
+    size: u32,
+    resizer: Resizer,
+    options: ResizeOptions,
+    /// The frame resized to `size x size`, RGB8; allocated once.
+    resized: Image<'static>,
 }
 
-impl Preprocessor {
-    /// Builds the lookup tables and allocates the resized image and the output tensor.
-    pub fn new(contract: &ModelContract) -> Self {
-        let size = contract.input_size;
-        let source_channel = match contract.channel_order {
-            ChannelOrder::Rgb => [0, 1, 2],
-            ChannelOrder::Bgr => [2, 1, 0],
-        };
-        let mut lut = [[0.0f32; 256]; 3];
-        for (plane, table) in lut.iter_mut().enumerate() {
-            let mean = f64::from(contract.mean[plane]);
-            let std = f64::from(contract.std[plane]);
-            for (v, entry) in table.iter_mut().enumerate() {
-                *entry = ((v as f64 / 255.0 - mean) / std) as f32;
-            }
-        }
-        let pixels = size as usize * size as usize;
-        Self {
-            size,
-            source_channel,
-            lut,
-            resizer: Resizer::new(),
-            options: ResizeOptions::new().resize_alg(ResizeAlg::Convolution(FilterType::Bilinear)),
-            resized: Image::new(size, size, PixelType::U8x3),
-            output: vec![0.0; 3 * pixels],
-        }
-    }
-
-    /// The side of the square network input, in pixels.
-    pub fn input_size(&self) -> u32 {
-        self.size
-    }
-
-    /// Step 1 alone: the frame resized to `input_size x input_size`, RGB8 (the frame itself
-    /// when it already has that size). The trainer caches these so that its inputs are the
-    /// daemon's, pixel for pixel.
-    pub fn resize<'a>(
+impl Scaler {
+    fn apply<'a>(
         &'a mut self,
         width: u32,
         height: u32,
@@ -143,6 +106,65 @@ impl Preprocessor {
             .map_err(|e| resize_err(e.to_string()))?;
         Ok(self.resized.buffer())
     }
+}
+
+impl std::fmt::Debug for Preprocessor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Preprocessor")
+            .field("size", &self.size)
+            .field("source_channel", &self.source_channel)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Preprocessor {
+    /// Builds the lookup tables and allocates the resized image and the output tensor.
+    pub fn new(contract: &ModelContract) -> Self {
+        let size = contract.input_size;
+        let source_channel = match contract.channel_order {
+            ChannelOrder::Rgb => [0, 1, 2],
+            ChannelOrder::Bgr => [2, 1, 0],
+        };
+        let mut lut = [[0.0f32; 256]; 3];
+        for (plane, table) in lut.iter_mut().enumerate() {
+            let mean = f64::from(contract.mean[plane]);
+            let std = f64::from(contract.std[plane]);
+            for (v, entry) in table.iter_mut().enumerate() {
+                *entry = ((v as f64 / 255.0 - mean) / std) as f32;
+            }
+        }
+        let pixels = size as usize * size as usize;
+        Self {
+            size,
+            source_channel,
+            lut,
+            scaler: Scaler {
+                size,
+                resizer: Resizer::new(),
+                options: ResizeOptions::new()
+                    .resize_alg(ResizeAlg::Convolution(FilterType::Bilinear)),
+                resized: Image::new(size, size, PixelType::U8x3),
+            },
+            output: vec![0.0; 3 * pixels],
+        }
+    }
+
+    /// The side of the square network input, in pixels.
+    pub fn input_size(&self) -> u32 {
+        self.size
+    }
+
+    /// Step 1 alone: the frame resized to `input_size x input_size`, RGB8 (the frame itself
+    /// when it already has that size). The trainer caches these so that its inputs are the
+    /// daemon's, pixel for pixel.
+    pub fn resize<'a>(
+        &'a mut self,
+        width: u32,
+        height: u32,
+        rgb: &'a [u8],
+    ) -> Result<&'a [u8], PreprocessError> {
+        self.scaler.apply(width, height, rgb)
+    }
 
     /// Preprocesses one RGB8 frame (`width * height * 3` bytes, rows top to bottom, no
     /// padding) and returns the NCHW tensor data, `3 * input_size * input_size` values.
@@ -151,21 +173,12 @@ impl Preprocessor {
     /// call.
     pub fn run(&mut self, width: u32, height: u32, rgb: &[u8]) -> Result<&[f32], PreprocessError> {
         let size = self.size;
-        let mut output = std::mem::take(&mut self.output);
-        let lut = self.lut;
-        let source_channel = self.source_channel;
-        let pixels = match self.resize(width, height, rgb) {
-            Ok(p) => p,
-            Err(e) => {
-                self.output = output;
-                return Err(e);
-            }
-        };
+        let pixels = self.scaler.apply(width, height, rgb)?;
         let plane_len = size as usize * size as usize;
-        let (p0, rest) = output.split_at_mut(plane_len);
+        let (p0, rest) = self.output.split_at_mut(plane_len);
         let (p1, p2) = rest.split_at_mut(plane_len);
-        let [c0, c1, c2] = source_channel;
-        let [l0, l1, l2] = &lut;
+        let [c0, c1, c2] = self.source_channel;
+        let [l0, l1, l2] = &self.lut;
         for (((px, o0), o1), o2) in pixels
             .chunks_exact(3)
             .zip(p0.iter_mut())
@@ -176,7 +189,6 @@ impl Preprocessor {
             *o1 = l1[usize::from(px[c1])];
             *o2 = l2[usize::from(px[c2])];
         }
-        self.output = output;
         Ok(&self.output)
     }
 }

@@ -177,14 +177,7 @@ pub fn load(
         }
     }
     if jobs.is_empty() {
-        return Err(TrainError::Data {
-            path: dirs
-                .iter()
-                .map(|d| d.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-            reason: "no demonstrations to learn from".into(),
-        });
+        return Err(nothing_in(dirs, "no demonstrations to learn from"));
     }
     let threads = threads.clamp(1, jobs.len());
     let chunk = jobs.len().div_ceil(threads);
@@ -214,6 +207,18 @@ pub fn load(
         samples,
         warnings,
     })
+}
+
+/// The error for folders that gave nothing to train on, naming them all.
+pub fn nothing_in(dirs: &[PathBuf], reason: &str) -> TrainError {
+    TrainError::Data {
+        path: dirs
+            .iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        reason: reason.into(),
+    }
 }
 
 fn decode_part(

@@ -189,12 +189,9 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState
     Ok((model, fresh))
 }
 
-fn to_tensors(b: &Batch, size: usize, device: &Device) -> (Tensor<4>, Tensor<2>) {
-    let x = Tensor::<4>::from_data(
-        TensorData::new(b.inputs.clone(), [b.len, 3, size, size]),
-        device,
-    );
-    let y = Tensor::<2>::from_data(TensorData::new(b.labels.clone(), [b.len, 2]), device);
+fn to_tensors(b: Batch, size: usize, device: &Device) -> (Tensor<4>, Tensor<2>) {
+    let x = Tensor::<4>::from_data(TensorData::new(b.inputs, [b.len, 3, size, size]), device);
+    let y = Tensor::<2>::from_data(TensorData::new(b.labels, [b.len, 2]), device);
     (x, y)
 }
 
@@ -237,7 +234,7 @@ pub fn evaluate(
             0,
             &mut rng,
         );
-        let (x, y) = to_tensors(&b, size, device);
+        let (x, y) = to_tensors(b, size, device);
         sum += scalar(mse(eval.forward(x), y))? * chunk.len() as f64;
         n += chunk.len();
     }
@@ -355,14 +352,15 @@ pub fn train(
                 }
             });
             for b in rx.iter() {
-                let (x, y) = to_tensors(&b, size, &device);
+                let n = b.len;
+                let (x, y) = to_tensors(b, size, &device);
                 let (next, value) = train_step(model.clone(), &mut optim, x, y, opts.lr)?;
                 if !value.is_finite() {
                     return Err(TrainError::Diverged { epoch, loss: value });
                 }
                 model = next;
-                loss_sum += value * b.len as f64;
-                seen += b.len;
+                loss_sum += value * n as f64;
+                seen += n;
                 let rate = seen as f64 / t0.elapsed().as_secs_f64().max(1e-9);
                 bar.set_message(format!(
                     "loss {:.4}  {rate:.1} img/s",

@@ -78,14 +78,10 @@ pub fn load(
         }
     }
     if out.is_empty() {
-        return Err(TrainError::Data {
-            path: dirs
-                .iter()
-                .map(|d| d.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-            reason: "no demonstration transitions (human steps with a reward)".into(),
-        });
+        return Err(crate::train::data::nothing_in(
+            dirs,
+            "no demonstration transitions (human steps with a reward)",
+        ));
     }
     Ok(out)
 }
