@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The paper's pipeline end to end in the simulator, as measured in README ("Trainer"):
-# 331 scripted-expert demonstrations -> imitation learning (50 epochs) -> DDPG from the
+# 331 scripted-expert demonstrations with recoveries -> imitation learning (50 epochs) -> DDPG from the
 # imitation policy plus the demonstrations, for what is left of a wall-clock budget
 # (TRAIN_MINUTES, default 30) -> the paper's 600 s evaluation of the best policy.
 #   scripts/train-e2e.sh [OUT]              (default OUT: .cache/e2e)
@@ -22,7 +22,10 @@ start=$(date +%s)
 if [ "${SCRATCH:-0}" = 1 ]; then
   $B train ddpg --sim "$CFG" --out "$OUT/ddpg" --minutes "$MINUTES"
 else
-  $B sim --config "$CFG" --expert --seconds 11.04 --record "$OUT/demos"
+  # 331 frames over about 1.2 laps (every 3rd control step, 10 per second), recording
+  # paused during the expert's swerves so the frames include recoveries.
+  $B sim --config "$CFG" --expert --seconds 60 --swerve-every 3 --record-every 3 \
+    --record-frames 331 --record "$OUT/demos"
   $B train il --config "$CFG" --input-size 96 --head speed-steering \
     --data "$OUT/demos" --out "$OUT/il"
   left=$(awk -v m="$MINUTES" -v s="$(( $(date +%s) - start ))" 'BEGIN { printf "%.2f", m - s / 60 }')

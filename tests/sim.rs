@@ -308,3 +308,71 @@ fn a_car_spinning_on_the_road_is_an_intervention_too() {
         "all on the road: the stall rule, not the road edge"
     );
 }
+
+#[test]
+fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
+    // The expert swerves every second on average; recording every 2nd control step (30 Hz:
+    // 67 ms apart), 60 frames at most. Swerve steps are not recorded, so some gaps are
+    // longer; every label is the expert's own pure-pursuit correction.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("rec.toml");
+    std::fs::write(&cfg, "[sim.camera]\nwidth = 32\nheight = 32\n").unwrap();
+    let tub = dir.path().join("demos");
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args([
+            "-q",
+            "sim",
+            "--expert",
+            "--seconds",
+            "8",
+            "--swerve-every",
+            "1",
+        ])
+        .args(["--record-every", "2", "--record-frames", "60", "--config"])
+        .arg(&cfg)
+        .arg("--record")
+        .arg(&tub)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("recorded 60 steps"));
+    let reader = jetpilot::dataset::tub::TubReader::open(&tub).unwrap();
+    let ms: Vec<u64> = reader.records().map(|r| r.timestamp_ms).collect();
+    assert_eq!(ms.len(), 60);
+    let gaps: Vec<u64> = ms.windows(2).map(|w| w[1] - w[0]).collect();
+    // Whole numbers of 2-step intervals (2/30 s), to the millisecond.
+    let whole = |g: u64| {
+        let k = (g as f64 * 15.0 / 1000.0).round();
+        k >= 1.0 && (g as f64 - k * 1000.0 / 15.0).abs() <= 1.0
+    };
+    assert!(gaps.iter().all(|g| whole(*g)), "{gaps:?}");
+    let long = gaps.iter().filter(|g| **g > 100).count();
+    assert!(long >= 2, "no swerve left out: {gaps:?}");
+    // Without swerves the same drive records every 2nd step with no longer gap.
+    let plain = dir.path().join("plain");
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args([
+            "-q",
+            "sim",
+            "--expert",
+            "--seconds",
+            "3",
+            "--record-every",
+            "2",
+        ])
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--record")
+        .arg(&plain)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let reader = jetpilot::dataset::tub::TubReader::open(&plain).unwrap();
+    let ms: Vec<u64> = reader.records().map(|r| r.timestamp_ms).collect();
+    assert_eq!(ms.len(), 45);
+    assert!(ms.windows(2).all(|w| w[1] - w[0] <= 67), "{ms:?}");
+}

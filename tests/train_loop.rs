@@ -237,6 +237,20 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
         assert!(a.join(f).is_file(), "{f} missing");
     }
     assert_eq!(csv_rows(&a.join("ddpg_episodes.csv")).len(), 3);
+    // The frozen backbone (the default) leaves the convolutions as imitation learning made them.
+    let weights = |p: &Path| {
+        load_onnx(p, &Device::flex())
+            .unwrap()
+            .0
+            .to_weights()
+            .unwrap()
+    };
+    let (before, after) = (weights(&init), weights(&a.join("last.onnx")));
+    assert_eq!(
+        after.tensors["conv1.weight"],
+        before.tensors["conv1.weight"]
+    );
+    assert_ne!(after.tensors["fc.weight"], before.tensors["fc.weight"]);
     // Evaluations at episode 0, 2 and after the last (3).
     let evals = csv_rows(&a.join("ddpg_eval.csv"));
     assert_eq!(evals.len(), 3, "{evals:?}");
@@ -295,4 +309,71 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
         (rewards - best_eval[5]).abs() <= 0.02 * best_eval[5] + 2.0,
         "{v} vs {best_eval:?}"
     );
+}
+
+#[test]
+fn ddpg_with_trainable_backbones_trains_the_exported_trunk() {
+    // From scratch (the random ResNet-18 of --seed) with the demonstrations: a few updates
+    // with --train-backbone must change the exported convolutions but not the batch-norm
+    // statistics, and `jetpilot eval` drives the result.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let tub = demos(dir.path(), &cfg, "1");
+    let out = dir.path().join("ddpg");
+    let text = ok(&jetpilot(
+        &[
+            "train",
+            "ddpg",
+            "--train-backbone",
+            "--input-size",
+            "32",
+            "--episodes",
+            "2",
+            "--episode-steps",
+            "16",
+            "--eval-every",
+            "0",
+            "--eval-seconds",
+            "1",
+            "--warmup-updates",
+            "2",
+            "--batch",
+            "8",
+            "--updates-per-step",
+            "0.25",
+            "--seed",
+            "1",
+            "--threads",
+            "1",
+        ],
+        &[
+            Path::new("--sim"),
+            &cfg,
+            Path::new("--demos"),
+            &tub,
+            Path::new("--out"),
+            &out,
+        ],
+    ));
+    assert!(text.contains("demonstration transitions"), "{text}");
+    let initial = jetpilot::policy::onnx::Resnet18Weights::random(2, 1);
+    let (last, contract) = load_onnx(&out.join("last.onnx"), &Device::flex()).unwrap();
+    assert_eq!(contract.input_size, SIZE);
+    let last = last.to_weights().unwrap();
+    for name in ["conv1.weight", "layer2.0.conv1.weight", "fc.weight"] {
+        assert_ne!(
+            last.tensors[name].1, initial.tensors[name].1,
+            "{name} did not train"
+        );
+    }
+    for name in ["bn1.running_mean", "layer4.1.bn2.running_var"] {
+        assert_eq!(
+            last.tensors[name].1, initial.tensors[name].1,
+            "{name} changed"
+        );
+    }
+    ok(&jetpilot(
+        &["eval", "--seconds", "2", "--config"],
+        &[&cfg, Path::new("--model"), &out.join("last.onnx")],
+    ));
 }

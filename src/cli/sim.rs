@@ -41,6 +41,20 @@ pub struct SimArgs {
     /// With --record: also write JetBot's road-following folder (xy_XXX_YYY_<uuid>.jpg).
     #[arg(long, value_name = "DIR", requires = "record")]
     record_xy: Option<PathBuf>,
+    /// With --record: keep every Nth control step only, so a fixed number of demonstrations
+    /// spans more of the track (e.g. 331 frames over a whole lap: `--seconds 33.1
+    /// --record-every 3`, as a human recording at 10 fps would).
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "record",
+          value_parser = clap::value_parser!(u64).range(1..))]
+    record_every: u64,
+    /// With --record: stop recording after this many frames (the drive goes on).
+    #[arg(long, value_name = "N", requires = "record")]
+    record_frames: Option<u64>,
+    /// With --expert: swerve off the lane centre every SECONDS on average (0.5x to 1.5x),
+    /// for half a second, and record only the way back: recovery demonstrations, as JetBot
+    /// and DonkeyCar users collect them. Overrides `[sim.expert] swerve_every_s`.
+    #[arg(long, value_name = "SECONDS", requires = "expert")]
+    swerve_every: Option<f32>,
     /// Write pictures a person can look at into this folder: `frames.png` (a strip of camera
     /// frames) and `trace.png` (the mat from above with the driven path and interventions).
     #[arg(long, value_name = "DIR")]
@@ -110,7 +124,7 @@ fn drive(
     expert: bool,
     seconds: f64,
     strip_every: Option<u64>,
-    mut recorder: Option<&mut DemoRecorder>,
+    mut recorder: Option<(&mut DemoRecorder, u64, u64)>,
 ) -> anyhow::Result<(SimRig, Driven)> {
     let mut rig = setup::build(cfg)?;
     let mut policy = if expert {
@@ -159,7 +173,9 @@ fn drive(
             {
                 strip.push(step.frame.rgb.as_ref().clone());
             }
-            if let Some(r) = recorder.as_deref_mut()
+            if let Some((r, record_every, limit)) = recorder.as_mut()
+                && step.seq % *record_every == 0
+                && r.written() < *limit
                 && record_error.is_none()
                 && let Err(e) = r.append(step)
             {
@@ -250,7 +266,10 @@ fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()>
 }
 
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
-    let cfg = Config::load(&args.config)?;
+    let mut cfg = Config::load(&args.config)?;
+    if let Some(s) = args.swerve_every {
+        cfg.sim.expert.swerve_every_s = s;
+    }
     if args.realtime {
         return realtime(&cfg, args.model.as_deref(), args.seconds);
     }
@@ -274,7 +293,9 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         args.expert,
         args.seconds,
         args.png.as_ref().map(|_| every),
-        recorder.as_mut(),
+        recorder
+            .as_mut()
+            .map(|r| (r, args.record_every, args.record_frames.unwrap_or(u64::MAX))),
     )?;
     print_result(&driven.result);
     if let (Some(r), Some(dir)) = (recorder, &args.record) {

@@ -5,13 +5,18 @@
 //!   on the prefetch thread, batches built per step); target >= 90 %.
 //! - DDPG with the frozen backbone: environment steps/s, updates included; target >= 50
 //!   at 96x96.
+//! - DDPG with trainable backbones (`--train-backbone`): seconds per update (no target; it
+//!   says what a run costs on this machine).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use jetpilot::policy::onnx::Resnet18Weights;
 use jetpilot::policy::{ModelContract, OutputKind};
 use jetpilot::train::augment::Augment;
 use jetpilot::train::data::{Dataset, LabelMap, Sample};
+use jetpilot::train::ddpg::agent::{Agent, AgentConfig};
+use jetpilot::train::ddpg::replay::{Replay, Transition};
 use jetpilot::train::ddpg::{self, DdpgOptions};
 use jetpilot::train::il::{self, IlOptions};
 use rand::{Rng, SeedableRng};
@@ -37,14 +42,21 @@ pub struct TrainBenchArgs {
     /// DDPG training episodes (300 steps at most each).
     #[arg(long, default_value_t = 6)]
     episodes: usize,
-    /// Skip a part: `il` or `ddpg`.
-    #[arg(long)]
-    skip: Option<String>,
+    /// Batch of the trainable-backbone DDPG update measurement.
+    #[arg(long, default_value_t = 32)]
+    backbone_batch: usize,
+    /// Timed trainable-backbone DDPG updates (after one untimed); the actor trains on every
+    /// second one (TD3's delay), so keep it even.
+    #[arg(long, default_value_t = 4)]
+    backbone_updates: usize,
+    /// Skip parts: any of `il`, `ddpg`, `backbone` (comma-separated or repeated).
+    #[arg(long, value_delimiter = ',')]
+    skip: Vec<String>,
 }
 
 pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
     let scratch = tempfile_dir()?;
-    if args.skip.as_deref() != Some("il") {
+    if !skips(&args, "il") {
         let raw = il::raw_throughput(args.input_size, args.batch, args.steps)?;
         let contract = ModelContract {
             input_size: args.input_size,
@@ -81,7 +93,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             b = args.batch,
         );
     }
-    if args.skip.as_deref() != Some("ddpg") {
+    if !skips(&args, "ddpg") {
         let cfg = super::train::config(Some(&args.sim))?;
         let mut opts = DdpgOptions::new(scratch.join("ddpg"), cfg);
         opts.input_size = args.input_size;
@@ -102,8 +114,50 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             s = args.input_size,
         );
     }
+    if !skips(&args, "backbone") {
+        let secs =
+            backbone_update_seconds(args.input_size, args.backbone_batch, args.backbone_updates)?;
+        println!(
+            "DDPG trainable backbones {s}x{s} batch {b}: {secs:.2} s per update (actor + twin critics + targets, each its own ResNet-18)",
+            s = args.input_size,
+            b = args.backbone_batch,
+        );
+    }
     let _ = std::fs::remove_dir_all(&scratch);
     Ok(ExitCode::SUCCESS)
+}
+
+fn skips(args: &TrainBenchArgs, part: &str) -> bool {
+    args.skip.iter().any(|s| s == part)
+}
+
+/// Mean seconds of one [`Agent::update`] with trainable backbones, on random frames.
+fn backbone_update_seconds(size: u32, batch: usize, updates: usize) -> anyhow::Result<f64> {
+    let weights = Resnet18Weights::random(2, 0);
+    let cfg = AgentConfig {
+        batch,
+        ..AgentConfig::default()
+    };
+    let mut agent = Agent::trainable(cfg, &weights, 0)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let px = (3 * size * size) as usize;
+    let mut replay = Replay::new(2 * batch);
+    for _ in 0..2 * batch {
+        replay.push(Transition {
+            features: (0..px).map(|_| rng.random_range(-2.0..2.0)).collect(),
+            action: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
+            reward: rng.random(),
+            next_features: (0..px).map(|_| rng.random_range(-2.0..2.0)).collect(),
+            discount: 0.98,
+            demo: false,
+        });
+    }
+    agent.update(&replay, true, &mut rng)?;
+    let t = std::time::Instant::now();
+    for _ in 0..updates.max(1) {
+        agent.update(&replay, true, &mut rng)?;
+    }
+    Ok(t.elapsed().as_secs_f64() / updates.max(1) as f64)
 }
 
 fn tempfile_dir() -> anyhow::Result<PathBuf> {

@@ -95,6 +95,17 @@ pub struct DdpgArgs {
     /// ONNX Runtime threads for the backbone.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Train the ResNet-18 backbones too (actor and critics), not only the actor's fc and
+    /// the critics' layers on frozen features. The replay then holds whole frames; each
+    /// update runs several ResNet-18 passes per sample, which wants a GPU (on this 2-core
+    /// CPU an update of batch 128 at 96x96 takes tens of seconds): lower --batch and
+    /// --updates-per-step to try it on a CPU.
+    #[arg(long)]
+    train_backbone: bool,
+    /// Replay buffer size in transitions (default 100000; 10000 with --train-backbone,
+    /// where one transition holds two frames: about 220 KB at 96x96).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    replay_capacity: Option<u64>,
 }
 
 pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
@@ -119,6 +130,12 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     opts.updates_per_step = args.updates_per_step;
     opts.warmup_updates = args.warmup_updates;
     opts.ort_threads = args.threads;
+    opts.train_backbone = args.train_backbone;
+    opts.replay_capacity = match args.replay_capacity {
+        Some(n) => n as usize,
+        None if args.train_backbone => 10_000,
+        None => opts.replay_capacity,
+    };
     let a = &mut opts.agent;
     a.gamma = args.gamma;
     a.actor_lr = args.actor_lr;

@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::Pose2;
-use super::expert::{ExpertAction, ExpertParams, pursue};
+use super::expert::{ExpertAction, ExpertParams, Swerves, pursue};
 use super::world::{StepScore, World};
 use crate::camera::Frame;
 use crate::clock::{Clock, SimClock};
@@ -33,6 +33,7 @@ pub enum Pilot<'a> {
     Expert {
         params: ExpertParams,
         rng: Box<ChaCha8Rng>,
+        swerves: Swerves,
     },
 }
 
@@ -41,6 +42,7 @@ impl<'a> Pilot<'a> {
         Pilot::Expert {
             params,
             rng: Box::new(ChaCha8Rng::seed_from_u64(seed)),
+            swerves: Swerves::default(),
         }
     }
 }
@@ -125,12 +127,18 @@ pub fn run(
                     let cmd = processor.process(&mut **policy, &frame, &clock)?;
                     (cmd.wheels, Some(cmd.outputs), None)
                 }
-                Pilot::Expert { params, rng } => {
+                Pilot::Expert {
+                    params,
+                    rng,
+                    swerves,
+                } => {
+                    let swerve = swerves.step(params, control_dt.as_secs_f32(), &mut **rng);
                     let a = pursue(
                         &world.track,
                         &pose,
                         world.robot.params(),
                         params,
+                        swerve,
                         &mut **rng,
                     );
                     (a.wheels, None, Some(a))

@@ -55,7 +55,12 @@ impl DemoRecorder {
     }
 
     /// Appends one step. The expert's steps are "user" (the human stand-in), a model's "local".
+    /// The expert's deliberate swerves are left out (recording paused, as a person collecting
+    /// recovery data would): only the way back is a demonstration.
     pub fn append(&mut self, step: &StepRecord<'_>) -> Result<(), DatasetError> {
+        if step.expert.is_some_and(|e| e.swerving) {
+            return Ok(());
+        }
         let f = step.frame;
         crate::dataset::encode_jpeg(&f.rgb, f.width, f.height, &mut self.jpeg).map_err(
             |source| DatasetError::Image {
@@ -92,6 +97,11 @@ impl DemoRecorder {
             self.tub.flush_and_sync()?;
         }
         Ok(())
+    }
+
+    /// Steps written so far.
+    pub fn written(&self) -> u64 {
+        self.written
     }
 
     /// Flushes and syncs everything written.

@@ -24,8 +24,9 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::features::{FEATURES, Head};
-use super::nets::{ActorHead, Critic, polyak_actor, polyak_critic, read};
+use super::nets::{ActorHead, Critic, polyak, read, trainable_trunk};
 use super::replay::Replay;
+use crate::policy::onnx::Resnet18Weights;
 use crate::train::TrainError;
 
 /// Learner settings.
@@ -114,16 +115,56 @@ struct BatchTensors {
 }
 
 impl Agent {
-    /// Networks on `device` (an autodiff device), actor from `head`; seeds burn's RNG.
+    /// Networks on frozen features (states are the backbone's 512 features), actor from
+    /// `head`; seeds burn's RNG.
     pub fn new(cfg: AgentConfig, head: &Head, seed: u64) -> Self {
+        let (inner, device) = Self::devices(seed);
+        let actor = ActorHead::from_head(head, &device);
+        let n_critics = if cfg.twin { 2 } else { 1 };
+        let critics = (0..n_critics)
+            .map(|_| Critic::new(cfg.hidden, None, &device))
+            .collect();
+        Self::assemble(cfg, actor, critics, inner, device)
+    }
+
+    /// Networks with trainable backbones (states are preprocessed frames): the actor is
+    /// `weights`' whole ResNet-18, and each critic gets its own copy of its trunk.
+    pub fn trainable(
+        cfg: AgentConfig,
+        weights: &Resnet18Weights,
+        seed: u64,
+    ) -> Result<Self, TrainError> {
+        let (inner, device) = Self::devices(seed);
+        let actor = ActorHead::trainable(weights, &device)?;
+        let n_critics = if cfg.twin { 2 } else { 1 };
+        let critics = (0..n_critics)
+            .map(|_| {
+                Ok(Critic::new(
+                    cfg.hidden,
+                    Some(trainable_trunk(weights, &device)?),
+                    &device,
+                ))
+            })
+            .collect::<Result<Vec<_>, TrainError>>()?;
+        Ok(Self::assemble(cfg, actor, critics, inner, device))
+    }
+
+    /// The plain device and its autodiff twin, burn's RNG seeded.
+    fn devices(seed: u64) -> (Device, Device) {
         let inner = crate::train::device();
         let device = inner.clone().autodiff();
         device.seed(seed);
-        let actor = ActorHead::from_head(head, &device);
-        let n_critics = if cfg.twin { 2 } else { 1 };
-        let critics: Vec<Critic> = (0..n_critics)
-            .map(|_| Critic::new(cfg.hidden, &device))
-            .collect();
+        (inner, device)
+    }
+
+    fn assemble(
+        cfg: AgentConfig,
+        actor: ActorHead,
+        critics: Vec<Critic>,
+        inner: Device,
+        device: Device,
+    ) -> Self {
+        let n_critics = critics.len();
         Self {
             actor_target: actor.clone().valid(),
             anchor: actor.clone().valid(),
@@ -143,15 +184,24 @@ impl Agent {
         &self.cfg
     }
 
-    /// The actor as a plain head.
+    /// The actor's `fc` as a plain head.
     pub fn head(&self) -> Result<Head, TrainError> {
         self.actor.clone().valid().to_head()
     }
 
+    /// The whole actor as ResNet-18 weights (`base` supplies the frozen backbone).
+    pub fn actor_weights(&self, base: &Resnet18Weights) -> Result<Resnet18Weights, TrainError> {
+        self.actor.clone().valid().to_weights(base)
+    }
+
     fn tensors(&self, replay: &Replay, idx: &[usize], device: &Device) -> BatchTensors {
         let n = idx.len();
-        let mut f = Vec::with_capacity(n * FEATURES);
-        let mut next = Vec::with_capacity(n * FEATURES);
+        // Frozen features (512) or preprocessed frames (3*S*S), whatever the replay holds.
+        let width = idx
+            .first()
+            .map_or(FEATURES, |&i| replay.get(i).features.len());
+        let mut f = Vec::with_capacity(n * width);
+        let mut next = Vec::with_capacity(n * width);
         let (mut a, mut r, mut d, mut demo) = (
             Vec::with_capacity(2 * n),
             Vec::with_capacity(n),
@@ -170,10 +220,10 @@ impl Agent {
         let n_demo = demo.iter().filter(|v| **v > 0.0).count();
         let t2 = |v: Vec<f32>, w: usize| Tensor::<2>::from_data(TensorData::new(v, [n, w]), device);
         BatchTensors {
-            f: t2(f, FEATURES),
+            f: t2(f, width),
             a: t2(a, 2),
             r: t2(r, 1),
-            next: t2(next, FEATURES),
+            next: t2(next, width),
             discount: t2(d, 1),
             demo: t2(demo, 1),
             n_demo,
@@ -264,15 +314,10 @@ impl Agent {
         let mut actor_loss = None;
         if train_actor && self.updates % self.cfg.policy_delay.max(1) as u64 == 0 {
             actor_loss = Some(self.update_actor(&b)?);
-            self.actor_target = polyak_actor(
-                &self.actor_target,
-                &self.actor.clone().valid(),
-                self.cfg.tau,
-            );
+            self.actor_target = polyak(self.actor_target.clone(), &self.actor, self.cfg.tau);
         }
-        let online: Vec<Critic> = self.critics.iter().map(|c| c.clone().valid()).collect();
-        for (t, o) in self.critic_targets.iter_mut().zip(&online) {
-            *t = polyak_critic(t, o, self.cfg.tau);
+        for (t, o) in self.critic_targets.iter_mut().zip(&self.critics) {
+            *t = polyak(t.clone(), o, self.cfg.tau);
         }
         Ok(UpdateStats {
             critic_loss,
@@ -425,5 +470,49 @@ mod tests {
         }
         let a = agent.head().unwrap().apply(&f);
         assert!(a[1] < -0.2, "steering {a:?}");
+    }
+
+    #[test]
+    fn a_trainable_update_moves_the_trunks_but_not_the_batch_norm_statistics() {
+        let weights = Resnet18Weights::random(2, 3);
+        let cfg = AgentConfig {
+            batch: 4,
+            hidden: 16,
+            actor_lr: 1e-3,
+            policy_delay: 1,
+            ..AgentConfig::default()
+        };
+        let mut agent = Agent::trainable(cfg, &weights, 0).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let px = 3 * 32 * 32;
+        let mut replay = Replay::new(16);
+        for i in 0..8 {
+            replay.push(Transition {
+                features: (0..px).map(|_| rng.random_range(-2.0..2.0)).collect(),
+                action: [0.5, 0.1 * i as f32 - 0.4],
+                reward: 1.0,
+                next_features: (0..px).map(|_| rng.random_range(-2.0..2.0)).collect(),
+                discount: 0.9,
+                demo: i % 2 == 0,
+            });
+        }
+        let stats = agent.update(&replay, true, &mut rng).unwrap();
+        assert!(stats.actor_loss.is_some() && stats.critic_loss.is_finite());
+        let after = agent.actor_weights(&weights).unwrap();
+        let changed = |name: &str| after.tensors[name].1 != weights.tensors[name].1;
+        assert!(changed("conv1.weight"), "actor trunk did not train");
+        assert!(changed("layer4.1.conv2.weight"));
+        assert!(changed("fc.weight"));
+        assert!(!changed("bn1.running_mean") && !changed("layer3.0.bn1.running_var"));
+        let critic_trunk = agent.critics[0]
+            .trunk
+            .as_ref()
+            .unwrap()
+            .to_weights()
+            .unwrap();
+        assert_ne!(
+            critic_trunk.tensors["conv1.weight"].1,
+            weights.tensors["conv1.weight"].1
+        );
     }
 }

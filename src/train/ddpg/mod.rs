@@ -14,8 +14,12 @@
 //!     replaces best.onnx
 //! ```
 //!
-//! The backbone is frozen (the CPU default): features are computed once per frame on ONNX
-//! Runtime, and only the actor's `fc` and the critics train. Files in the output folder:
+//! The backbone is frozen by default (the CPU choice): features are computed once per frame
+//! on ONNX Runtime, the replay holds them, and only the actor's `fc` and the critics train.
+//! With `train_backbone` the replay holds the preprocessed frames instead, the actor and
+//! each critic train a ResNet-18 of their own (initialised from the actor), and the ONNX
+//! Runtime session that acts is rebuilt from the actor after each round of updates (the
+//! actor does not change during an episode). Files in the output folder:
 //! `ddpg_episodes.csv`, `ddpg_eval.csv`, `ddpg_curve.png`, `best.onnx`, `last.onnx`.
 
 pub mod agent;
@@ -75,6 +79,8 @@ pub struct DdpgOptions {
     /// Stop once an evaluation has no intervention.
     pub stop_at_full_autonomy: bool,
     pub ort_threads: usize,
+    /// Train the ResNet-18 trunks too (see the module doc); much slower on a CPU.
+    pub train_backbone: bool,
 }
 
 impl DdpgOptions {
@@ -100,6 +106,7 @@ impl DdpgOptions {
             eval_seconds: 600.0,
             stop_at_full_autonomy: false,
             ort_threads: 2,
+            train_backbone: false,
         }
     }
 }
@@ -212,11 +219,106 @@ fn clamp_action(a: [f32; 2], cfg: &AgentConfig) -> [f32; 2] {
     ]
 }
 
+/// What the replay buffer holds as a state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// The frozen backbone's 512 features.
+    Features,
+    /// The preprocessed frame (`3*S*S` values), for a backbone that trains.
+    Frames,
+}
+
+impl State {
+    fn of(self, input: &[f32], features: &[f32]) -> Vec<f32> {
+        match self {
+            Self::Features => features.to_vec(),
+            Self::Frames => input.to_vec(),
+        }
+    }
+}
+
+/// The evaluations of one run: the log, the best so far and its export.
+struct Evaluations<'a, F> {
+    opts: &'a DdpgOptions,
+    contract: &'a ModelContract,
+    started: Instant,
+    log: CsvLog,
+    points: Vec<EvalPoint>,
+    best: Option<EvalPoint>,
+    on_eval: F,
+}
+
+/// The actor as it acts: the ONNX Runtime backbone, the linear head, and the weights the
+/// two make up together (for export).
+struct Acting {
+    backbone: Backbone,
+    head: Head,
+    weights: Resnet18Weights,
+}
+
+impl Acting {
+    fn new(
+        weights: Resnet18Weights,
+        contract: &ModelContract,
+        threads: usize,
+    ) -> Result<Self, TrainError> {
+        Ok(Self {
+            backbone: Backbone::new(&weights, contract, threads)?,
+            head: Head::from_weights(&weights)?,
+            weights,
+        })
+    }
+}
+
+impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
+    /// The paper's protocol on `actor`; a new best is exported. True when the run should
+    /// stop (full autonomy reached and asked to stop there).
+    fn run(
+        &mut self,
+        episode: usize,
+        env_steps: u64,
+        actor: &mut Acting,
+    ) -> Result<bool, TrainError> {
+        let mut policy = FeatureActor::new(&mut actor.backbone, &actor.head, self.contract);
+        let outcome = evaluate(&self.opts.cfg, &mut policy, self.opts.eval_seconds)?;
+        let point = EvalPoint {
+            episode,
+            env_steps,
+            wall_s: self.started.elapsed().as_secs_f64(),
+            outcome,
+        };
+        self.log.row(&[
+            episode as f64,
+            env_steps as f64,
+            point.wall_s,
+            f64::from(outcome.interventions),
+            f64::from(outcome.autonomy_percent),
+            outcome.rewards as f64,
+            outcome.mean_reward,
+            outcome.laps,
+        ])?;
+        let better = match &self.best {
+            None => true,
+            Some(b) => {
+                (outcome.autonomy_percent, outcome.rewards)
+                    > (b.outcome.autonomy_percent, b.outcome.rewards)
+            }
+        };
+        if better {
+            write_weights(&actor.weights, self.contract, &best_path(&self.opts.out))?;
+            self.best = Some(point);
+        }
+        self.points.push(point);
+        (self.on_eval)(&point, better);
+        Ok(self.opts.stop_at_full_autonomy && outcome.interventions == 0)
+    }
+}
+
 /// Runs DDPG; `on_episode` and `on_eval` see progress as it happens.
 pub fn train(
     opts: &DdpgOptions,
     mut on_episode: impl FnMut(&EpisodeStats),
-    mut on_eval: impl FnMut(&EvalPoint, bool),
+    on_eval: impl FnMut(&EvalPoint, bool),
 ) -> Result<DdpgReport, TrainError> {
     let started = Instant::now();
     std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::Data {
@@ -224,8 +326,12 @@ pub fn train(
         reason: e.to_string(),
     })?;
     let (base, contract) = initial(opts)?;
-    let mut backbone = Backbone::new(&base, &contract, opts.ort_threads)?;
-    let head = Head::from_weights(&base)?;
+    let state = if opts.train_backbone {
+        State::Frames
+    } else {
+        State::Features
+    };
+    let mut actor = Acting::new(base, &contract, opts.ort_threads)?;
     let mut cfg = opts.cfg.clone();
     cfg.sim.seed = opts.seed;
     let labels = LabelMap::new(OutputKind::SpeedSteering, &cfg.control.gains());
@@ -234,7 +340,8 @@ pub fn train(
     let mut replay = Replay::new(opts.replay_capacity);
     let demo = demos::load(
         &opts.demos,
-        &mut backbone,
+        &mut actor.backbone,
+        state,
         &contract,
         &labels,
         opts.n_step,
@@ -255,7 +362,10 @@ pub fn train(
         Err(e) => return Err(e),
     };
 
-    let mut agent = Agent::new(opts.agent.clone(), &head, opts.seed);
+    let mut agent = match state {
+        State::Features => Agent::new(opts.agent.clone(), &actor.head, opts.seed),
+        State::Frames => Agent::trainable(opts.agent.clone(), &actor.weights, opts.seed)?,
+    };
     // Critic warm-up on the demonstrations: the actor stays the imitation policy.
     if !replay.is_empty() {
         for _ in 0..opts.warmup_updates {
@@ -264,7 +374,15 @@ pub fn train(
     }
 
     let mut episodes_log = CsvLog::open(&episodes_csv(&opts.out), &EPISODE_HEADER, false)?;
-    let mut eval_log = CsvLog::open(&eval_csv(&opts.out), &EVAL_HEADER, false)?;
+    let mut evals = Evaluations {
+        opts,
+        contract: &contract,
+        started,
+        log: CsvLog::open(&eval_csv(&opts.out), &EVAL_HEADER, false)?,
+        points: Vec::new(),
+        best: None,
+        on_eval,
+    };
     let mut env =
         Env::new(&cfg, opts.episode_steps).map_err(|e| TrainError::Backend(e.to_string()))?;
     let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
@@ -276,72 +394,14 @@ pub fn train(
         1.0 / cfg.sim.control_hz,
     );
     let count_threshold = cfg.sim.reward.count_threshold;
+    let sim_err = |e: crate::sim::SimError| TrainError::Backend(e.to_string());
 
-    let mut evals = Vec::new();
-    let mut best: Option<EvalPoint> = None;
     let mut env_steps = 0u64;
     let mut updates = 0u64;
     let mut train_seconds = 0.0f64;
     let mut episode = 0usize;
-    let mut current = head.clone();
-
-    let mut run_eval = |episode: usize,
-                        env_steps: u64,
-                        current: &Head,
-                        backbone: &mut Backbone,
-                        best: &mut Option<EvalPoint>,
-                        evals: &mut Vec<EvalPoint>,
-                        eval_log: &mut CsvLog|
-     -> Result<bool, TrainError> {
-        let mut actor = FeatureActor::new(backbone, current, &contract);
-        let outcome = evaluate(&opts.cfg, &mut actor, opts.eval_seconds)?;
-        let point = EvalPoint {
-            episode,
-            env_steps,
-            wall_s: started.elapsed().as_secs_f64(),
-            outcome,
-        };
-        eval_log.row(&[
-            episode as f64,
-            env_steps as f64,
-            point.wall_s,
-            f64::from(outcome.interventions),
-            f64::from(outcome.autonomy_percent),
-            outcome.rewards as f64,
-            outcome.mean_reward,
-            outcome.laps,
-        ])?;
-        let better = match best {
-            None => true,
-            Some(b) => {
-                (outcome.autonomy_percent, outcome.rewards)
-                    > (b.outcome.autonomy_percent, b.outcome.rewards)
-            }
-        };
-        if better {
-            write_weights(
-                &current.into_weights(&base),
-                &contract,
-                &best_path(&opts.out),
-            )?;
-            *best = Some(point);
-        }
-        evals.push(point);
-        on_eval(&point, better);
-        Ok(opts.stop_at_full_autonomy && outcome.interventions == 0)
-    };
-
-    let mut done_early = run_eval(
-        0,
-        0,
-        &current,
-        &mut backbone,
-        &mut best,
-        &mut evals,
-        &mut eval_log,
-    )?;
+    let mut done_early = evals.run(0, 0, &mut actor)?;
     let mut features = vec![0.0f32; FEATURES];
-    let mut next_features = vec![0.0f32; FEATURES];
 
     while !done_early
         && episode < opts.max_episodes
@@ -349,13 +409,11 @@ pub fn train(
     {
         episode += 1;
         let t0 = Instant::now();
-        let obs = env
-            .reset(None)
-            .map_err(|e| TrainError::Backend(e.to_string()))?;
         let input = pre
-            .run(w, h, obs)
+            .run(w, h, env.reset(None).map_err(sim_err)?)
             .map_err(|e| TrainError::Backend(e.to_string()))?;
-        backbone.features(input, &mut features)?;
+        actor.backbone.features(input, &mut features)?;
+        let mut current = state.of(input, &features);
         noise.reset();
         let mut nstep = NStep::new(opts.n_step, opts.agent.gamma);
         let mut stats = EpisodeStats {
@@ -370,35 +428,34 @@ pub fn train(
             mean_q: f64::NAN,
         };
         loop {
-            let a = current.apply(&features);
+            let a = actor.head.apply(&features);
             let n = noise.sample(&mut rng);
             let action = clamp_action([a[0] + n[0], a[1] + n[1]], &opts.agent);
-            let o = env
-                .step(action)
-                .map_err(|e| TrainError::Backend(e.to_string()))?;
+            let o = env.step(action).map_err(sim_err)?;
             let input = pre
                 .run(w, h, env.observation())
                 .map_err(|e| TrainError::Backend(e.to_string()))?;
-            backbone.features(input, &mut next_features)?;
+            actor.backbone.features(input, &mut features)?;
+            let next = state.of(input, &features);
             stats.steps += 1;
             stats.ret += f64::from(o.reward);
             if o.reward >= count_threshold {
                 stats.rewards += 1;
             }
             let step = Step {
-                features: features.clone(),
+                features: std::mem::take(&mut current),
                 action,
                 reward: o.reward,
             };
-            if let Some(t) = nstep.push(step, &next_features, false) {
+            if let Some(t) = nstep.push(step, &next, false) {
                 replay.push(t);
             }
-            std::mem::swap(&mut features, &mut next_features);
+            current = next;
             if o.done || o.truncated {
                 if o.done {
                     stats.interventions = 1;
                 }
-                for t in nstep.finish(&features, o.done, false) {
+                for t in nstep.finish(&current, o.done, false) {
                     replay.push(t);
                 }
                 break;
@@ -407,7 +464,7 @@ pub fn train(
         env_steps += stats.steps;
         stats.env_seconds = t0.elapsed().as_secs_f64();
 
-        // Updates between episodes.
+        // Updates between episodes; the acting copy of the actor follows after them.
         let t1 = Instant::now();
         let n_updates = (stats.steps as f32 * opts.updates_per_step).round() as usize;
         let (mut closs, mut q, mut counted) = (0.0, 0.0, 0usize);
@@ -419,7 +476,19 @@ pub fn train(
                 counted += 1;
             }
             updates += counted as u64;
-            current = agent.head()?;
+            match state {
+                State::Features => {
+                    actor.head = agent.head()?;
+                    actor.weights = actor.head.into_weights(&actor.weights);
+                }
+                State::Frames => {
+                    actor = Acting::new(
+                        agent.actor_weights(&actor.weights)?,
+                        &contract,
+                        opts.ort_threads,
+                    )?;
+                }
+            }
         }
         if counted > 0 {
             stats.critic_loss = closs / counted as f64;
@@ -441,33 +510,13 @@ pub fn train(
         on_episode(&stats);
 
         if opts.eval_every > 0 && episode % opts.eval_every == 0 {
-            done_early = run_eval(
-                episode,
-                env_steps,
-                &current,
-                &mut backbone,
-                &mut best,
-                &mut evals,
-                &mut eval_log,
-            )?;
+            done_early = evals.run(episode, env_steps, &mut actor)?;
         }
     }
     // The last policy, and a final evaluation when the last episodes were not evaluated.
-    write_weights(
-        &current.into_weights(&base),
-        &contract,
-        &opts.out.join("last.onnx"),
-    )?;
+    write_weights(&actor.weights, &contract, &opts.out.join("last.onnx"))?;
     if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
-        run_eval(
-            episode,
-            env_steps,
-            &current,
-            &mut backbone,
-            &mut best,
-            &mut evals,
-            &mut eval_log,
-        )?;
+        evals.run(episode, env_steps, &mut actor)?;
     }
     let plot_warning = plot_curve(&opts.out)?;
     Ok(DdpgReport {
@@ -476,8 +525,8 @@ pub fn train(
         updates,
         wall_s: started.elapsed().as_secs_f64(),
         steps_per_s: env_steps as f64 / train_seconds.max(1e-9),
-        evals,
-        best,
+        evals: evals.points,
+        best: evals.best,
         best_path: best_path(&opts.out),
         demo_transitions,
         plot_warning,

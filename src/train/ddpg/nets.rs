@@ -1,35 +1,70 @@
-//! The networks DDPG trains on top of the frozen backbone, as burn modules:
+//! The networks DDPG trains, as burn modules:
 //!
 //! ```text
-//! actor head:  f [B,512] -> fc -> a [B,2]                    (the exported actor's fc)
-//! critic:      concat(f [B,512], a [B,2]) -> 256 -> relu -> 256 -> relu -> 1   Q [B,1]
+//! encoder:     x [B,D] -> f [B,512]      frozen backbone: x *is* f (D = 512), computed once
+//!                                        per frame on ONNX Runtime (the CPU default);
+//!                                        trainable: x = the preprocessed frame (D = 3*S*S),
+//!                                        reshaped to [B,3,S,S] -> the network's own ResNet-18
+//! actor:       f -> fc -> a [B,2]                                  (the exported actor's fc)
+//! critic:      concat(f, a [B,2]) -> 256 -> relu -> 256 -> relu -> 1   Q [B,1]
 //! ```
 //!
 //! The critic is the paper's: ResNet-18 features with the action concatenated into the input
-//! of its final fully connected layers. Target networks live on the plain (non-autodiff)
-//! device and follow the online ones by Polyak averaging, `t <- (1 - tau) t + tau o`.
+//! of its final fully connected layers. A trainable trunk keeps its batch-norm layers in
+//! inference mode (the imitation run's running statistics; a replay batch mixes states from
+//! many episodes, and the target networks must see the same normalisation), while its
+//! convolution and batch-norm affine weights train. Target networks live on the plain
+//! (non-autodiff) device and follow the online ones by Polyak averaging,
+//! `t <- (1 - tau) t + tau o`, over every float tensor of the module ([`polyak`]).
 
-use burn::module::{Module, Param};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
 use burn::nn::{Linear, LinearConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::features::{FEATURES, Head};
+use crate::policy::onnx::Resnet18Weights;
 use crate::train::TrainError;
+use crate::train::resnet::Resnet18;
 
-/// The actor's `fc`: 512 -> 2.
+/// A trainable ResNet-18 trunk from `weights`: batch norm frozen to its running statistics,
+/// every weight trainable (see the module doc).
+pub fn trainable_trunk(weights: &Resnet18Weights, device: &Device) -> Result<Resnet18, TrainError> {
+    Ok(Resnet18::from_weights(weights, device)?
+        .freeze()
+        .set_require_grad(true))
+}
+
+/// `x [B,D]` to features `[B,512]`: the identity without a trunk, else the trunk's pooled
+/// features of `x` seen as `[B,3,S,S]`.
+fn encode(trunk: &Option<Resnet18>, x: Tensor<2>) -> Tensor<2> {
+    match trunk {
+        None => x,
+        Some(t) => {
+            let [b, d] = x.dims();
+            let s = ((d / 3) as f64).sqrt().round() as usize;
+            t.features(x.reshape([b, 3, s, s]))
+        }
+    }
+}
+
+/// The actor: an optional trainable trunk, then `fc`: 512 -> 2.
 #[derive(Module, Debug)]
 pub struct ActorHead {
+    /// `Some` when the backbone trains (its own `fc` is not used).
+    pub trunk: Option<Resnet18>,
     pub fc: Linear,
 }
 
 impl ActorHead {
+    /// A head on frozen features.
     pub fn from_head(head: &Head, device: &Device) -> Self {
         // burn stores Linear weights [d_in, d_out]; Head holds torchvision's [2][512].
         let w = Tensor::<2>::from_data(TensorData::new(head.weight.clone(), [2, FEATURES]), device)
             .transpose();
         let b = Tensor::<1>::from_data(TensorData::new(head.bias.to_vec(), [2]), device);
         Self {
+            trunk: None,
             fc: Linear {
                 weight: Param::from_tensor(w),
                 bias: Some(Param::from_tensor(b)),
@@ -37,8 +72,17 @@ impl ActorHead {
         }
     }
 
-    pub fn forward(&self, f: Tensor<2>) -> Tensor<2> {
-        self.fc.forward(f)
+    /// The whole network of `weights`, trunk trainable.
+    pub fn trainable(weights: &Resnet18Weights, device: &Device) -> Result<Self, TrainError> {
+        let head = Head::from_weights(weights)?;
+        Ok(Self {
+            trunk: Some(trainable_trunk(weights, device)?),
+            ..Self::from_head(&head, device)
+        })
+    }
+
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.fc.forward(encode(&self.trunk, x))
     }
 
     /// Back to a plain [`Head`] for acting and export.
@@ -53,29 +97,41 @@ impl ActorHead {
             bias: [b[0], b[1]],
         })
     }
+
+    /// The whole actor as ResNet-18 weights: the trunk's own when it trains, else `base`'s
+    /// (the frozen backbone), with this `fc`.
+    pub fn to_weights(&self, base: &Resnet18Weights) -> Result<Resnet18Weights, TrainError> {
+        let head = self.to_head()?;
+        Ok(match &self.trunk {
+            Some(t) => head.into_weights(&t.to_weights()?),
+            None => head.into_weights(base),
+        })
+    }
 }
 
-/// Q(f, a).
+/// Q(f, a), with an optional trainable trunk of its own.
 #[derive(Module, Debug)]
 pub struct Critic {
+    pub trunk: Option<Resnet18>,
     pub l1: Linear,
     pub l2: Linear,
     pub out: Linear,
 }
 
 impl Critic {
-    /// A critic with `hidden` units per layer; burn's default initialisation, then the
-    /// seeded device RNG.
-    pub fn new(hidden: usize, device: &Device) -> Self {
+    /// A critic with `hidden` units per layer on `trunk`'s features (or frozen features);
+    /// burn's default initialisation from the seeded device RNG.
+    pub fn new(hidden: usize, trunk: Option<Resnet18>, device: &Device) -> Self {
         Self {
+            trunk,
             l1: LinearConfig::new(FEATURES + 2, hidden).init(device),
             l2: LinearConfig::new(hidden, hidden).init(device),
             out: LinearConfig::new(hidden, 1).init(device),
         }
     }
 
-    pub fn forward(&self, f: Tensor<2>, a: Tensor<2>) -> Tensor<2> {
-        let x = Tensor::cat(vec![f, a], 1);
+    pub fn forward(&self, x: Tensor<2>, a: Tensor<2>) -> Tensor<2> {
+        let x = Tensor::cat(vec![encode(&self.trunk, x), a], 1);
         let x = relu(self.l1.forward(x));
         let x = relu(self.l2.forward(x));
         self.out.forward(x)
@@ -90,38 +146,47 @@ pub fn read<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>, TrainError> {
         .map_err(|e| TrainError::Backend(format!("{e:?}")))
 }
 
-/// `(1 - tau) * target + tau * online`, for one linear layer (`online` moved to the target's
-/// device).
-pub fn polyak_linear(target: &Linear, online: &Linear, tau: f32) -> Linear {
-    let mix = |t: Tensor<2>, o: Tensor<2>| t.mul_scalar(1.0 - tau).add(o.mul_scalar(tau));
-    let dev = target.weight.val().device();
-    let weight = mix(target.weight.val(), online.weight.val().to_device(&dev));
-    let bias = match (&target.bias, &online.bias) {
-        (Some(t), Some(o)) => Some(Param::from_tensor(
-            t.val()
-                .mul_scalar(1.0 - tau)
-                .add(o.val().to_device(&dev).mul_scalar(tau)),
-        )),
-        _ => None,
+/// Every float tensor of a module, in visiting order, flattened.
+struct Collect(Vec<Tensor<1>>);
+
+impl ModuleVisitor for Collect {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let t = param.val();
+        let n = t.shape().num_elements();
+        self.0.push(t.reshape([n]));
+    }
+}
+
+/// `t <- (1 - tau) t + tau o` for each float tensor, `o` taken in visiting order.
+struct Mix {
+    online: std::vec::IntoIter<Tensor<1>>,
+    tau: f32,
+}
+
+impl ModuleMapper for Mix {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let Some(o) = self.online.next() else {
+            return param;
+        };
+        let tau = self.tau;
+        param.map(|t| {
+            let (shape, dev) = (t.shape(), t.device());
+            let o: Tensor<D> = o.to_device(&dev).reshape(shape);
+            t.mul_scalar(1.0 - tau).add(o.mul_scalar(tau))
+        })
+    }
+}
+
+/// Polyak averaging of `target` towards `online` (same architecture; `online` may be on
+/// the autodiff device: only its detached values are read).
+pub fn polyak<M: Module>(target: M, online: &M, tau: f32) -> M {
+    let mut c = Collect(Vec::new());
+    online.valid().visit(&mut c);
+    let mut mix = Mix {
+        online: c.0.into_iter(),
+        tau,
     };
-    Linear {
-        weight: Param::from_tensor(weight),
-        bias,
-    }
-}
-
-pub fn polyak_critic(target: &Critic, online: &Critic, tau: f32) -> Critic {
-    Critic {
-        l1: polyak_linear(&target.l1, &online.l1, tau),
-        l2: polyak_linear(&target.l2, &online.l2, tau),
-        out: polyak_linear(&target.out, &online.out, tau),
-    }
-}
-
-pub fn polyak_actor(target: &ActorHead, online: &ActorHead, tau: f32) -> ActorHead {
-    ActorHead {
-        fc: polyak_linear(&target.fc, &online.fc, tau),
-    }
+    target.map(&mut mix)
 }
 
 #[cfg(test)]
@@ -155,19 +220,67 @@ mod tests {
     #[test]
     fn polyak_moves_a_tau_share_of_the_way() {
         let device = Device::flex();
-        let a = Critic::new(4, &device);
-        let b = Critic::new(4, &device);
-        let m = polyak_critic(&a, &b, 0.25);
-        let (wa, wb, wm) = (
-            read(a.l1.weight.val()).unwrap(),
-            read(b.l1.weight.val()).unwrap(),
-            read(m.l1.weight.val()).unwrap(),
-        );
-        for i in 0..wa.len() {
-            assert!((wm[i] - (0.75 * wa[i] + 0.25 * wb[i])).abs() < 1e-6);
+        let a = Critic::new(4, None, &device);
+        let b = Critic::new(4, None, &device);
+        let m = polyak(a.clone(), &b, 0.25);
+        for (x, y, z) in [
+            (&a.l1.weight, &b.l1.weight, &m.l1.weight),
+            (&a.out.weight, &b.out.weight, &m.out.weight),
+        ] {
+            let (wa, wb, wm) = (
+                read(x.val()).unwrap(),
+                read(y.val()).unwrap(),
+                read(z.val()).unwrap(),
+            );
+            for i in 0..wa.len() {
+                assert!((wm[i] - (0.75 * wa[i] + 0.25 * wb[i])).abs() < 1e-6);
+            }
         }
+        let ba = read(a.l2.bias.as_ref().unwrap().val()).unwrap();
+        let bb = read(b.l2.bias.as_ref().unwrap().val()).unwrap();
+        let bm = read(m.l2.bias.as_ref().unwrap().val()).unwrap();
+        assert!((bm[3] - (0.75 * ba[3] + 0.25 * bb[3])).abs() < 1e-6);
         let f = Tensor::<2>::zeros([3, FEATURES], &device);
         let act = Tensor::<2>::zeros([3, 2], &device);
         assert_eq!(m.forward(f, act).dims(), [3, 1]);
+    }
+
+    #[test]
+    fn a_trainable_actor_computes_the_network_in_inference_mode_and_trains_its_trunk() {
+        // Same numbers as the plain ResNet-18 forward pass (batch norm on running statistics)
+        // although it runs on the autodiff device, and its conv weights get gradients.
+        let weights = Resnet18Weights::random(2, 7);
+        let plain = Device::flex();
+        let ad = plain.clone().autodiff();
+        let actor = ActorHead::trainable(&weights, &ad).unwrap();
+        let reference = Resnet18::from_weights(&weights, &plain).unwrap();
+        let s = 32;
+        let x: Vec<f32> = (0..2 * 3 * s * s)
+            .map(|i| ((i % 97) as f32 / 48.0) - 1.0)
+            .collect();
+        let want = read(reference.forward(Tensor::<4>::from_data(
+            TensorData::new(x.clone(), [2, 3, s, s]),
+            &plain,
+        )))
+        .unwrap();
+        let out = actor.forward(Tensor::<2>::from_data(
+            TensorData::new(x, [2, 3 * s * s]),
+            &ad,
+        ));
+        let got = read(out.clone()).unwrap();
+        for (g, w) in got.iter().zip(&want) {
+            assert!((g - w).abs() < 1e-4, "{got:?} vs {want:?}");
+        }
+        let grads = out.sum().backward();
+        let trunk = actor.trunk.as_ref().unwrap();
+        assert!(trunk.conv1.weight.grad(&grads).is_some());
+        assert!(trunk.layer4[1].bn2.gamma.grad(&grads).is_some());
+        // Export: the trunk's weights with this fc.
+        let back = actor.to_weights(&Resnet18Weights::random(2, 8)).unwrap();
+        assert_eq!(
+            back.tensors["conv1.weight"].1,
+            weights.tensors["conv1.weight"].1
+        );
+        assert_eq!(back.tensors["fc.bias"].1, weights.tensors["fc.bias"].1);
     }
 }
