@@ -72,7 +72,8 @@ pub struct IlArgs {
     /// No flip and no colour jitter.
     #[arg(long)]
     no_augment: bool,
-    /// Continue after the last finished epoch in --out.
+    /// Continue after the last finished epoch in --out (last.onnx and Adam's state
+    /// il_optim.bpk).
     #[arg(long)]
     resume: bool,
     /// Threads decoding images (default: the number of cores).

@@ -9,20 +9,21 @@
 //!    decoded once and cached at the input size;
 //! 2. one Adam step per batch on the autodiff device (BatchNorm on batch statistics);
 //! 3. the test loss with the running statistics, without augmentation;
-//! 4. a CSV row, the learning-curve PNG, `last.onnx` always and `best.onnx` when the test
-//!    loss is the best so far, then `il_state.json` (written last: a run killed before it
-//!    resumes from the previous epoch).
+//! 4. a CSV row, the learning-curve PNG, `last.onnx` and Adam's state `il_optim.bpk` always,
+//!    `best.onnx` when the test loss is the best so far, then `il_state.json` (written
+//!    last: a run killed before it resumes from the previous epoch).
 //!
-//! `--resume` continues after the last finished epoch from `last.onnx`; Adam's moment
-//! estimates start again from zero (burn keys optimiser state by parameter ids that a
-//! reloaded model does not keep).
+//! `--resume` continues after the last finished epoch from `last.onnx` and `il_optim.bpk`.
+//! burn keys optimiser state by parameter id, and a model reloaded from ONNX gets new ids,
+//! so `il_state.json` keeps the ids in visiting order and the reloaded model takes them
+//! back: a resumed run computes bit for bit the losses of one that never stopped (tested).
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
-use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::optim::{AdamConfig, GradientsParams, OptimizerRecord};
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -84,6 +85,10 @@ pub struct IlState {
     pub seed: u64,
     pub samples: usize,
     pub seconds: f64,
+    /// The model's parameter ids in visiting order when `il_optim.bpk` was written: Adam's
+    /// state is keyed by them, and a model reloaded from `last.onnx` gets new ones.
+    #[serde(default)]
+    pub param_ids: Vec<u64>,
 }
 
 /// One epoch's numbers.
@@ -124,6 +129,86 @@ fn last_path(out: &Path) -> PathBuf {
 }
 fn state_path(out: &Path) -> PathBuf {
     out.join("il_state.json")
+}
+fn optim_path(out: &Path) -> PathBuf {
+    out.join("il_optim.bpk")
+}
+
+/// Parameter ids in visiting order.
+struct Ids(Vec<u64>);
+
+impl ModuleVisitor for Ids {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.0.push(param.id.val());
+    }
+}
+
+/// Gives parameters the ids of a list in visiting order.
+struct SetIds(std::vec::IntoIter<u64>);
+
+impl ModuleMapper for SetIds {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        match self.0.next() {
+            Some(id) => {
+                let (_, value, mapper) = param.consume();
+                Param::from_mapped_value(ParamId::from(id), value, mapper)
+            }
+            None => param,
+        }
+    }
+}
+
+fn param_ids(model: &Resnet18) -> Vec<u64> {
+    let mut ids = Ids(Vec::new());
+    model.visit(&mut ids);
+    ids.0
+}
+
+/// Saves Adam's state beside `last.onnx` (atomically), for `--resume`.
+fn save_optim(optim: &burn::optim::ModuleOptimizer, out: &Path) -> Result<(), TrainError> {
+    let path = optim_path(out);
+    let tmp = path.with_extension("bpk.tmp");
+    optim.to_record().save(&tmp).map_err(|e| TrainError::Data {
+        path: tmp.display().to_string(),
+        reason: format!("cannot save the optimiser state: {e:?}"),
+    })?;
+    std::fs::rename(&tmp, &path).map_err(io_err(&path))
+}
+
+/// Adam, with its saved state when resuming a run that saved it (the model's parameters
+/// take their saved ids so the state finds them).
+fn resumed_optim(
+    model: Resnet18,
+    state: &IlState,
+    out: &Path,
+) -> Result<(Resnet18, burn::optim::ModuleOptimizer), TrainError> {
+    let optim = AdamConfig::new().init();
+    let path = optim_path(out);
+    if state.epochs_done == 0 || state.param_ids.is_empty() || !path.is_file() {
+        if state.epochs_done > 0 {
+            tracing::warn!(
+                file = %path.display(),
+                "no saved optimiser state: Adam's moment estimates start again from zero"
+            );
+        }
+        return Ok((model, optim));
+    }
+    if param_ids(&model).len() != state.param_ids.len() {
+        return Err(TrainError::Data {
+            path: state_path(out).display().to_string(),
+            reason: format!(
+                "{} parameter ids saved, the model in last.onnx has {}",
+                state.param_ids.len(),
+                param_ids(&model).len()
+            ),
+        });
+    }
+    let record = OptimizerRecord::load(&path).map_err(|e| TrainError::Data {
+        path: path.display().to_string(),
+        reason: format!("cannot read the optimiser state: {e:?}"),
+    })?;
+    let model = model.map(&mut SetIds(state.param_ids.clone().into_iter()));
+    Ok((model, optim.load_record(record)))
 }
 pub fn csv_path(out: &Path) -> PathBuf {
     out.join("il_log.csv")
@@ -166,6 +251,7 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState
         seed: opts.seed,
         samples: 0,
         seconds: 0.0,
+        param_ids: Vec::new(),
     };
     if opts.resume && state_path(&opts.out).is_file() {
         let state = read_state(&state_path(&opts.out))?;
@@ -319,7 +405,8 @@ pub fn train(
     }
     let resuming = state.epochs_done > 0;
     let mut log = CsvLog::open(&csv_path(&opts.out), &CSV_HEADER, resuming)?;
-    let mut optim = AdamConfig::new().init();
+    let (resumed, mut optim) = resumed_optim(model, &state, &opts.out)?;
+    model = resumed;
     let size = data.size as usize;
     let mirrored = opts.labels.mirrored_component();
     let mut last = None;
@@ -403,6 +490,8 @@ pub fn train(
             stats.seconds,
         ])?;
         write_actor(&model, &opts.contract, &last_path(&opts.out))?;
+        save_optim(&optim, &opts.out)?;
+        state.param_ids = param_ids(&model);
         if test_loss < state.best_test_loss {
             state.best_test_loss = test_loss;
             state.best_epoch = epoch;
@@ -473,5 +562,70 @@ mod tests {
         assert_ne!(b, epoch_batches(&train, 4, 3, 2), "a new order each epoch");
         // 9 = 4 + 4 + 1: the single image is dropped.
         assert_eq!(epoch_batches(&(0..9).collect::<Vec<_>>(), 4, 0, 1).len(), 2);
+    }
+
+    #[test]
+    fn a_resumed_run_computes_what_an_unbroken_one_does() {
+        use crate::policy::OutputKind;
+        use crate::train::data::Sample;
+        use rand::Rng;
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let size = 32u32;
+        let data = Dataset {
+            size,
+            samples: (0..12)
+                .map(|_| Sample {
+                    pixels: (0..size * size * 3).map(|_| rng.random()).collect(),
+                    label: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
+                })
+                .collect(),
+            warnings: Vec::new(),
+        };
+        let contract = ModelContract {
+            input_size: size,
+            output: OutputKind::SpeedSteering,
+            ..ModelContract::default()
+        };
+        let labels = LabelMap::new(OutputKind::SpeedSteering, &Default::default());
+        let dir = tempfile::tempdir().unwrap();
+        let opts = |out: &str, epochs: usize, resume: bool| IlOptions {
+            epochs,
+            batch: 4,
+            test_fraction: 0.25,
+            resume,
+            progress: false,
+            ..IlOptions::paper(dir.path().join(out), contract.clone(), labels)
+        };
+        let mut straight = Vec::new();
+        train(&data, &opts("a", 3, false), |e| {
+            straight.push((e.train_loss, e.test_loss))
+        })
+        .unwrap();
+        let mut broken = Vec::new();
+        train(&data, &opts("b", 1, false), |e| {
+            broken.push((e.train_loss, e.test_loss))
+        })
+        .unwrap();
+        train(&data, &opts("b", 3, true), |e| {
+            broken.push((e.train_loss, e.test_loss))
+        })
+        .unwrap();
+        // The same run, without Adam's saved state: its moments restart from zero.
+        let mut reset = Vec::new();
+        train(&data, &opts("c", 1, false), |e| {
+            reset.push((e.train_loss, e.test_loss))
+        })
+        .unwrap();
+        std::fs::remove_file(optim_path(&dir.path().join("c"))).unwrap();
+        train(&data, &opts("c", 3, true), |e| {
+            reset.push((e.train_loss, e.test_loss))
+        })
+        .unwrap();
+        assert_eq!(straight, broken, "the resumed run differs");
+        let restarted = (reset[1].0 - straight[1].0).abs() / straight[1].0;
+        assert!(
+            restarted > 0.05,
+            "restarting Adam changed epoch 2 by only {restarted}"
+        );
     }
 }

@@ -139,7 +139,12 @@ impl Resnet18 {
             layer4: layer(4)?,
             avgpool: AdaptiveAvgPool2dConfig::new([1, 1]).init(),
             fc: Linear {
-                weight: Param::from_tensor(fc_weight.transpose()), // [512,N]
+                // [512,N], stored contiguously (as a trained layer's is: the arithmetic,
+                // and so the rounding, then matches a model that never left memory).
+                weight: Param::from_tensor(Tensor::from_data(
+                    fc_weight.transpose().into_data(),
+                    device,
+                )),
                 bias: Some(Param::from_tensor(src.tensor("fc.bias")?)), // [N]
             },
         })
