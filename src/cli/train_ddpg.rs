@@ -97,9 +97,9 @@ pub struct DdpgArgs {
     threads: usize,
     /// Train the ResNet-18 backbones too (actor and critics), not only the actor's fc and
     /// the critics' layers on frozen features. The replay then holds whole frames; each
-    /// update runs several ResNet-18 passes per sample, which wants a GPU (on this 2-core
-    /// CPU an update of batch 128 at 96x96 takes tens of seconds): lower --batch and
-    /// --updates-per-step to try it on a CPU.
+    /// update runs several ResNet-18 passes per sample, which wants a GPU (on a 2-core CPU
+    /// one update of batch 32 at 96x96 took 3.5 s, `jetpilot train bench`): lower --batch
+    /// and --updates-per-step to try it on a CPU.
     #[arg(long)]
     train_backbone: bool,
     /// Replay buffer size in transitions (default 100000; 10000 with --train-backbone,

@@ -101,8 +101,12 @@ pub struct Dataset {
     pub warnings: Vec<String>,
 }
 
-/// What one folder contributes before decoding: image paths with labels.
-type Listing = Vec<(PathBuf, [f32; 2])>;
+/// What one folder contributes before decoding: image paths with labels, which are pixel
+/// positions (a JetBot xy folder: the label needs each image's size) or final values.
+struct Listing {
+    items: Vec<(PathBuf, [f32; 2])>,
+    pixel_labels: bool,
+}
 
 /// Lists a tub (a folder with `manifest.json`) or a JetBot xy folder.
 fn list(dir: &Path, map: &LabelMap, warnings: &mut Vec<String>) -> Result<Listing, TrainError> {
@@ -137,7 +141,10 @@ fn list(dir: &Path, map: &LabelMap, warnings: &mut Vec<String>) -> Result<Listin
                 dir.display()
             ));
         }
-        return Ok(out);
+        return Ok(Listing {
+            items: out,
+            pixel_labels: false,
+        });
     }
     if map.output != OutputKind::Xy {
         // An xy folder has target points only; say so rather than fail on the listing.
@@ -157,7 +164,10 @@ fn list(dir: &Path, map: &LabelMap, warnings: &mut Vec<String>) -> Result<Listin
     for s in folder.samples() {
         out.push((s.path.clone(), [s.px as f32, s.py as f32]));
     }
-    Ok(out)
+    Ok(Listing {
+        items: out,
+        pixel_labels: true,
+    })
 }
 
 /// Reads every folder in `dirs` into frames resized for `contract`, decoding on `threads`
@@ -171,9 +181,9 @@ pub fn load(
     let mut warnings = Vec::new();
     let mut jobs: Vec<(PathBuf, [f32; 2], bool)> = Vec::new();
     for dir in dirs {
-        let is_tub = dir.join("manifest.json").is_file();
-        for (path, label) in list(dir, map, &mut warnings)? {
-            jobs.push((path, label, !is_tub));
+        let listing = list(dir, map, &mut warnings)?;
+        for (path, label) in listing.items {
+            jobs.push((path, label, listing.pixel_labels));
         }
     }
     if jobs.is_empty() {

@@ -518,7 +518,10 @@ pub fn train(
     if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
         evals.run(episode, env_steps, &mut actor)?;
     }
-    let plot_warning = plot_curve(&opts.out)?;
+    let plot_warning = plot_curve(
+        &opts.out,
+        (opts.eval_seconds * f64::from(opts.cfg.sim.control_hz)).round(),
+    )?;
     Ok(DdpgReport {
         episodes: episode,
         env_steps,
@@ -533,19 +536,28 @@ pub fn train(
     })
 }
 
-/// `ddpg_curve.png`: the autonomy value of each evaluation against environment steps.
-fn plot_curve(out: &Path) -> Result<Option<String>, TrainError> {
+/// `ddpg_curve.png`: each evaluation's autonomy value and the share of its control steps
+/// that earned a reward (the paper's reward count over the test's `steps_per_test`), both in
+/// percent, against environment steps.
+fn plot_curve(out: &Path, steps_per_test: f64) -> Result<Option<String>, TrainError> {
     let (_, rows) = read_csv(&eval_csv(out))?;
     let autonomy = Series {
         name: "autonomy %".into(),
         points: rows.iter().map(|r| (r[1], r[4])).collect(),
     };
+    let rewards = Series {
+        name: "steps with a reward %".into(),
+        points: rows
+            .iter()
+            .map(|r| (r[1], 100.0 * r[5] / steps_per_test.max(1.0)))
+            .collect(),
+    };
     Ok(plot_png(
         &png_path(out),
-        "DDPG: autonomy in the 600 s test",
+        "DDPG evaluations",
         "environment steps",
-        "autonomy (%)",
-        &[autonomy],
+        "percent",
+        &[autonomy, rewards],
         false,
         (800, 500),
     )?)
