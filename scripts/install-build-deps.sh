@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
 # Debian packages the build needs, installed only when missing (idempotent):
 # libclang-dev for bindgen (the v4l crate generates its V4L2 bindings at build time);
-# fonts-dejavu-core for the text of the trainer's learning-curve PNGs.
+# fonts-dejavu-core for the text of the trainer's learning-curve PNGs; mesa-vulkan-drivers
+# (Mesa's lavapipe, a CPU Vulkan driver, with the Vulkan loader) for the tests of the
+# trainer's wgpu backend (`train --device wgpu:cpu`) on machines without a GPU.
 set -euo pipefail
 need=()
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 dpkg -s fonts-dejavu-core >/dev/null 2>&1 || need+=(fonts-dejavu-core)
+dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || need+=(mesa-vulkan-drivers)
+dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
 if [ ${#need[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" -eq 0 ] || SUDO=sudo

@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use jetpilot::config::Config;
 use jetpilot::policy::{ModelContract, OutputKind};
+use jetpilot::train::TrainDevice;
 use jetpilot::train::augment::Augment;
 use jetpilot::train::data::{self, LabelMap};
 use jetpilot::train::il::{self, IlOptions};
@@ -79,6 +80,11 @@ pub struct IlArgs {
     /// Threads decoding images (default: the number of cores).
     #[arg(long)]
     decode_threads: Option<usize>,
+    /// Where the networks train: flex (burn's CPU backend) or, with the build feature
+    /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
+    /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
+    #[arg(long, default_value = "flex", value_name = "DEVICE")]
+    device: TrainDevice,
 }
 
 pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
@@ -141,6 +147,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     opts.test_fraction = args.test_fraction;
     opts.seed = args.seed;
     opts.resume = args.resume;
+    opts.device = args.device;
     opts.progress = !cfg!(test);
     if args.no_augment {
         opts.augment = Augment::NONE;

@@ -13,6 +13,7 @@ use std::process::ExitCode;
 
 use jetpilot::policy::onnx::Resnet18Weights;
 use jetpilot::policy::{ModelContract, OutputKind};
+use jetpilot::train::TrainDevice;
 use jetpilot::train::augment::Augment;
 use jetpilot::train::data::{Dataset, LabelMap, Sample};
 use jetpilot::train::ddpg::agent::{Agent, AgentConfig};
@@ -52,12 +53,17 @@ pub struct TrainBenchArgs {
     /// Skip parts: any of `il`, `ddpg`, `backbone` (comma-separated or repeated).
     #[arg(long, value_delimiter = ',')]
     skip: Vec<String>,
+    /// Where the networks train: flex (burn's CPU backend) or, with the build feature
+    /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
+    /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
+    #[arg(long, default_value = "flex", value_name = "DEVICE")]
+    device: TrainDevice,
 }
 
 pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
     let scratch = tempfile_dir()?;
     if !skips(&args, "il") {
-        let raw = il::raw_throughput(args.input_size, args.batch, args.steps)?;
+        let raw = il::raw_throughput(args.device, args.input_size, args.batch, args.steps)?;
         let contract = ModelContract {
             input_size: args.input_size,
             output: OutputKind::SpeedSteering,
@@ -83,14 +89,16 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
         opts.test_fraction = 0.0;
         opts.augment = Augment::JETBOT;
         opts.progress = false;
+        opts.device = args.device;
         let mut rates = Vec::new();
         il::train(&data, &opts, |e| rates.push(e.images_per_s))?;
         let pipeline = rates.iter().sum::<f64>() / rates.len().max(1) as f64;
         println!(
-            "imitation learning {s}x{s} batch {b}: raw step {raw:.1} img/s, with the data pipeline {pipeline:.1} img/s = {:.1} % (target >= 90 %)",
+            "imitation learning {s}x{s} batch {b} on {d}: raw step {raw:.1} img/s, with the data pipeline {pipeline:.1} img/s = {:.1} % (target >= 90 %)",
             100.0 * pipeline / raw,
             s = args.input_size,
             b = args.batch,
+            d = args.device,
         );
     }
     if !skips(&args, "ddpg") {
@@ -102,9 +110,10 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
         opts.eval_every = 0;
         opts.eval_seconds = 1.0;
         opts.warmup_updates = 0;
+        opts.device = args.device;
         let report = ddpg::train(&opts, |_| {}, |_, _| {})?;
         println!(
-            "DDPG frozen backbone {s}x{s}: {} environment steps in {} episodes, {:.1} steps/s with {} updates (batch {}, {} per step) (target >= 50)",
+            "DDPG frozen backbone {s}x{s}, heads on {d}: {} environment steps in {} episodes, {:.1} steps/s with {} updates (batch {}, {} per step) (target >= 50)",
             report.env_steps,
             report.episodes,
             report.steps_per_s,
@@ -112,15 +121,21 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             opts.agent.batch,
             opts.updates_per_step,
             s = args.input_size,
+            d = args.device,
         );
     }
     if !skips(&args, "backbone") {
-        let secs =
-            backbone_update_seconds(args.input_size, args.backbone_batch, args.backbone_updates)?;
+        let secs = backbone_update_seconds(
+            args.device,
+            args.input_size,
+            args.backbone_batch,
+            args.backbone_updates,
+        )?;
         println!(
-            "DDPG trainable backbones {s}x{s} batch {b}: {secs:.2} s per update (actor + twin critics + targets, each its own ResNet-18)",
+            "DDPG trainable backbones {s}x{s} batch {b} on {d}: {secs:.2} s per update (actor + twin critics + targets, each its own ResNet-18)",
             s = args.input_size,
             b = args.backbone_batch,
+            d = args.device,
         );
     }
     let _ = std::fs::remove_dir_all(&scratch);
@@ -132,13 +147,18 @@ fn skips(args: &TrainBenchArgs, part: &str) -> bool {
 }
 
 /// Mean seconds of one [`Agent::update`] with trainable backbones, on random frames.
-fn backbone_update_seconds(size: u32, batch: usize, updates: usize) -> anyhow::Result<f64> {
+fn backbone_update_seconds(
+    device: TrainDevice,
+    size: u32,
+    batch: usize,
+    updates: usize,
+) -> anyhow::Result<f64> {
     let weights = Resnet18Weights::random(2, 0);
     let cfg = AgentConfig {
         batch,
         ..AgentConfig::default()
     };
-    let mut agent = Agent::trainable(cfg, &weights, 0)?;
+    let mut agent = Agent::trainable(cfg, &weights, 0, &device.open()?)?;
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let px = (3 * size * size) as usize;
     let mut replay = Replay::new(2 * batch);

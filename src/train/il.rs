@@ -34,7 +34,7 @@ use super::augment::{Augment, Batch, make_batch};
 use super::curve::{CsvLog, Series, plot_png, read_csv};
 use super::data::{Dataset, LabelMap, split};
 use super::export::write_actor;
-use super::{Resnet18, TrainError, load_onnx};
+use super::{Resnet18, TrainDevice, TrainError, load_onnx};
 use crate::policy::ModelContract;
 use crate::policy::onnx::Resnet18Weights;
 
@@ -54,6 +54,8 @@ pub struct IlOptions {
     pub augment: Augment,
     pub resume: bool,
     pub progress: bool,
+    /// Where the network trains (see [`TrainDevice`]).
+    pub device: TrainDevice,
 }
 
 impl IlOptions {
@@ -71,6 +73,7 @@ impl IlOptions {
             seed: 0,
             augment: Augment::JETBOT,
             resume: false,
+            device: TrainDevice::Flex,
             progress: true,
         }
     }
@@ -207,6 +210,7 @@ fn resumed_optim(
         path: path.display().to_string(),
         reason: format!("cannot read the optimiser state: {e:?}"),
     })?;
+    super::device::check_default_device()?;
     let model = model.map(&mut SetIds(state.param_ids.clone().into_iter()));
     Ok((model, optim.load_record(record)))
 }
@@ -358,8 +362,13 @@ fn train_step(
 /// The framework's raw training throughput in images/s: `steps` Adam steps (after one
 /// untimed step) on one constant batch, with no data pipeline at all; the yardstick for
 /// [`train`]'s images/s.
-pub fn raw_throughput(size: u32, batch: usize, steps: usize) -> Result<f64, TrainError> {
-    let device = super::device().autodiff();
+pub fn raw_throughput(
+    device: TrainDevice,
+    size: u32,
+    batch: usize,
+    steps: usize,
+) -> Result<f64, TrainError> {
+    let device = device.open()?.autodiff();
     let mut model = Resnet18::from_weights(&Resnet18Weights::random(2, 0), &device)?;
     let mut optim = AdamConfig::new().init();
     let s = size as usize;
@@ -388,8 +397,8 @@ pub fn train(
     opts: &IlOptions,
     mut on_epoch: impl FnMut(&EpochStats),
 ) -> Result<IlReport, TrainError> {
+    let device = opts.device.open()?.autodiff();
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
-    let device = super::device().autodiff();
     let (mut model, mut state) = initial_model(opts, &device)?;
     state.samples = data.samples.len();
     let (train_idx, test_idx) = split(data.samples.len(), opts.test_fraction, opts.seed);

@@ -18,18 +18,13 @@ pub mod augment;
 pub mod curve;
 pub mod data;
 pub mod ddpg;
+pub mod device;
 pub mod export;
 pub mod il;
 pub mod resnet;
 
+pub use device::TrainDevice;
 pub use resnet::{Resnet18, load_onnx};
-
-/// The device every training computation runs on (the one place to change for a GPU:
-/// enable burn's `cuda` or `wgpu` feature and return `Device::cuda(0)` / `Device::wgpu(..)`;
-/// the model code is device-generic). Today: burn's Flex CPU backend.
-pub fn device() -> burn::tensor::Device {
-    burn::tensor::Device::flex()
-}
 
 /// Errors of the trainer.
 #[derive(Debug, thiserror::Error)]
@@ -52,6 +47,9 @@ pub enum TrainError {
     /// A tensor whose values cannot be read (not float32, external data, wrong length).
     #[error("tensor `{name}`: {reason}")]
     TensorData { name: String, reason: String },
+    /// The `--device` asked for is not built in or cannot be opened.
+    #[error("device `{device}`: {reason}")]
+    Device { device: String, reason: String },
     /// Reading a tensor back from the backend failed.
     #[error("backend: {0}")]
     Backend(String),

@@ -24,7 +24,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::features::{FEATURES, Head};
-use super::nets::{ActorHead, Critic, polyak, read, trainable_trunk};
+use super::nets::{ActorHead, Critic, forked_to, polyak, read, trainable_trunk};
 use super::replay::Replay;
 use crate::policy::onnx::Resnet18Weights;
 use crate::train::TrainError;
@@ -116,15 +116,15 @@ struct BatchTensors {
 
 impl Agent {
     /// Networks on frozen features (states are the backbone's 512 features), actor from
-    /// `head`; seeds burn's RNG.
-    pub fn new(cfg: AgentConfig, head: &Head, seed: u64) -> Self {
-        let (inner, device) = Self::devices(seed);
-        let actor = ActorHead::from_head(head, &device);
+    /// `head`, on `device` (a plain one; see [`crate::train::TrainDevice`]); seeds burn's RNG.
+    pub fn new(cfg: AgentConfig, head: &Head, seed: u64, device: &Device) -> Self {
+        let init = Self::init_device(seed);
+        let actor = ActorHead::from_head(head, &init);
         let n_critics = if cfg.twin { 2 } else { 1 };
         let critics = (0..n_critics)
-            .map(|_| Critic::new(cfg.hidden, None, &device))
+            .map(|_| Critic::new(cfg.hidden, None, &init))
             .collect();
-        Self::assemble(cfg, actor, critics, inner, device)
+        Self::assemble(cfg, actor, critics, device, seed)
     }
 
     /// Networks with trainable backbones (states are preprocessed frames): the actor is
@@ -133,37 +133,50 @@ impl Agent {
         cfg: AgentConfig,
         weights: &Resnet18Weights,
         seed: u64,
+        device: &Device,
     ) -> Result<Self, TrainError> {
-        let (inner, device) = Self::devices(seed);
-        let actor = ActorHead::trainable(weights, &device)?;
+        let init = Self::init_device(seed);
+        let actor = ActorHead::trainable(weights, &init)?;
         let n_critics = if cfg.twin { 2 } else { 1 };
         let critics = (0..n_critics)
             .map(|_| {
                 Ok(Critic::new(
                     cfg.hidden,
-                    Some(trainable_trunk(weights, &device)?),
-                    &device,
+                    Some(trainable_trunk(weights, &init)?),
+                    &init,
                 ))
             })
             .collect::<Result<Vec<_>, TrainError>>()?;
-        Ok(Self::assemble(cfg, actor, critics, inner, device))
+        Ok(Self::assemble(cfg, actor, critics, device, seed))
     }
 
-    /// The plain device and its autodiff twin, burn's RNG seeded.
-    fn devices(seed: u64) -> (Device, Device) {
-        let inner = crate::train::device();
-        let device = inner.clone().autodiff();
-        device.seed(seed);
-        (inner, device)
+    /// Where the networks are built: Flex's autodiff device, burn's RNG seeded, whatever
+    /// the training device (so one seed gives the same initial networks on all of them).
+    fn init_device(seed: u64) -> Device {
+        let init = Device::flex().autodiff();
+        init.seed(seed);
+        init
     }
 
+    /// The agent training on `plain` (its autodiff twin), the networks moved there.
     fn assemble(
         cfg: AgentConfig,
         actor: ActorHead,
         critics: Vec<Critic>,
-        inner: Device,
-        device: Device,
+        plain: &Device,
+        seed: u64,
     ) -> Self {
+        let inner = plain.clone();
+        let device = inner.clone().autodiff();
+        let (actor, critics) = if inner == Device::flex() {
+            (actor, critics)
+        } else {
+            device.seed(seed);
+            (
+                forked_to(actor, &device),
+                critics.into_iter().map(|c| forked_to(c, &device)).collect(),
+            )
+        };
         let n_critics = critics.len();
         Self {
             actor_target: actor.clone().valid(),
@@ -427,7 +440,7 @@ mod tests {
             policy_delay: 1,
             ..AgentConfig::default()
         };
-        let mut agent = Agent::new(cfg, &head(), 0);
+        let mut agent = Agent::new(cfg, &head(), 0, &Device::flex());
         for i in 0..600 {
             agent.update(&replay, i >= 200, &mut rng).unwrap();
         }
@@ -464,7 +477,7 @@ mod tests {
             policy_delay: 1,
             ..AgentConfig::default()
         };
-        let mut agent = Agent::new(cfg, &head(), 0);
+        let mut agent = Agent::new(cfg, &head(), 0, &Device::flex());
         for _ in 0..300 {
             agent.update(&replay, true, &mut rng).unwrap();
         }
@@ -482,7 +495,7 @@ mod tests {
             policy_delay: 1,
             ..AgentConfig::default()
         };
-        let mut agent = Agent::trainable(cfg, &weights, 0).unwrap();
+        let mut agent = Agent::trainable(cfg, &weights, 0, &Device::flex()).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let px = 3 * 32 * 32;
         let mut replay = Replay::new(16);

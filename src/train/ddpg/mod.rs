@@ -33,6 +33,7 @@ pub mod replay;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use burn::tensor::Device;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -44,7 +45,7 @@ use self::replay::{NStep, Replay, Step};
 use super::curve::{CsvLog, Series, plot_png, read_csv};
 use super::data::LabelMap;
 use super::export::write_weights;
-use super::{TrainError, load_onnx};
+use super::{TrainDevice, TrainError, load_onnx};
 use crate::config::Config;
 use crate::policy::onnx::Resnet18Weights;
 use crate::policy::{ModelContract, OutputKind, Preprocessor};
@@ -81,6 +82,8 @@ pub struct DdpgOptions {
     pub ort_threads: usize,
     /// Train the ResNet-18 trunks too (see the module doc); much slower on a CPU.
     pub train_backbone: bool,
+    /// Where the actor and critics train (see [`TrainDevice`]).
+    pub device: TrainDevice,
 }
 
 impl DdpgOptions {
@@ -107,6 +110,7 @@ impl DdpgOptions {
             stop_at_full_autonomy: false,
             ort_threads: 2,
             train_backbone: false,
+            device: TrainDevice::Flex,
         }
     }
 }
@@ -190,7 +194,7 @@ pub fn png_path(out: &Path) -> PathBuf {
 fn initial(opts: &DdpgOptions) -> Result<(Resnet18Weights, ModelContract), TrainError> {
     match &opts.init {
         Some(path) => {
-            let (model, contract) = load_onnx(path, &super::device())?;
+            let (model, contract) = load_onnx(path, &Device::flex())?;
             if contract.output != OutputKind::SpeedSteering {
                 return Err(TrainError::Data {
                     path: path.display().to_string(),
@@ -321,6 +325,7 @@ pub fn train(
     on_eval: impl FnMut(&EvalPoint, bool),
 ) -> Result<DdpgReport, TrainError> {
     let started = Instant::now();
+    let device = opts.device.open()?;
     std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::Data {
         path: opts.out.display().to_string(),
         reason: e.to_string(),
@@ -363,8 +368,8 @@ pub fn train(
     };
 
     let mut agent = match state {
-        State::Features => Agent::new(opts.agent.clone(), &actor.head, opts.seed),
-        State::Frames => Agent::trainable(opts.agent.clone(), &actor.weights, opts.seed)?,
+        State::Features => Agent::new(opts.agent.clone(), &actor.head, opts.seed, &device),
+        State::Frames => Agent::trainable(opts.agent.clone(), &actor.weights, opts.seed, &device)?,
     };
     // Critic warm-up on the demonstrations: the actor stays the imitation policy.
     if !replay.is_empty() {

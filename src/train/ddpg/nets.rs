@@ -189,6 +189,23 @@ pub fn polyak<M: Module>(target: M, online: &M, tau: f32) -> M {
     target.map(&mut mix)
 }
 
+/// Forces every lazily initialised parameter into existence where it is.
+struct Materialise;
+
+impl ModuleVisitor for Materialise {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let _ = param.val();
+    }
+}
+
+/// `m`, its parameters initialised where it was built, forked to `device` (an autodiff
+/// device: the copy trains there). Networks are built on Flex with burn's seeded RNG and then
+/// moved, so one seed starts from the same weights on every device.
+pub fn forked_to<M: Module>(m: M, device: &Device) -> M {
+    m.visit(&mut Materialise);
+    m.fork(device)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
