@@ -80,11 +80,18 @@ pub struct IlArgs {
     /// Threads decoding images (default: the number of cores).
     #[arg(long)]
     decode_threads: Option<usize>,
+    #[command(flatten)]
+    target: super::train::DeviceArg,
+}
+
+/// `--device`, shared by `train il`, `train ddpg` and `train bench`.
+#[derive(Debug, clap::Args)]
+pub struct DeviceArg {
     /// Where the networks train: flex (burn's CPU backend) or, with the build feature
     /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
     /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
     #[arg(long, default_value = "flex", value_name = "DEVICE")]
-    device: TrainDevice,
+    pub device: TrainDevice,
 }
 
 pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
@@ -147,7 +154,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     opts.test_fraction = args.test_fraction;
     opts.seed = args.seed;
     opts.resume = args.resume;
-    opts.device = args.device;
+    opts.device = args.target.device;
     opts.progress = !cfg!(test);
     if args.no_augment {
         opts.augment = Augment::NONE;

@@ -15,7 +15,7 @@ use jetpilot::policy::onnx::Resnet18Weights;
 use jetpilot::policy::{ModelContract, OutputKind};
 use jetpilot::train::TrainDevice;
 use jetpilot::train::augment::Augment;
-use jetpilot::train::data::{Dataset, LabelMap, Sample};
+use jetpilot::train::data::{Dataset, LabelMap};
 use jetpilot::train::ddpg::agent::{Agent, AgentConfig};
 use jetpilot::train::ddpg::replay::{Replay, Transition};
 use jetpilot::train::ddpg::{self, DdpgOptions};
@@ -53,35 +53,20 @@ pub struct TrainBenchArgs {
     /// Skip parts: any of `il`, `ddpg`, `backbone` (comma-separated or repeated).
     #[arg(long, value_delimiter = ',')]
     skip: Vec<String>,
-    /// Where the networks train: flex (burn's CPU backend) or, with the build feature
-    /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
-    /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
-    #[arg(long, default_value = "flex", value_name = "DEVICE")]
-    device: TrainDevice,
+    #[command(flatten)]
+    target: super::train::DeviceArg,
 }
 
 pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
     let scratch = tempfile_dir()?;
     if !skips(&args, "il") {
-        let raw = il::raw_throughput(args.device, args.input_size, args.batch, args.steps)?;
+        let raw = il::raw_throughput(args.target.device, args.input_size, args.batch, args.steps)?;
         let contract = ModelContract {
             input_size: args.input_size,
             output: OutputKind::SpeedSteering,
             ..ModelContract::default()
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        let n = 4 * args.batch;
-        let px = (args.input_size * args.input_size * 3) as usize;
-        let data = Dataset {
-            size: args.input_size,
-            samples: (0..n)
-                .map(|_| Sample {
-                    pixels: (0..px).map(|_| rng.random()).collect(),
-                    label: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
-                })
-                .collect(),
-            warnings: Vec::new(),
-        };
+        let data = Dataset::random(args.input_size, 4 * args.batch, 0);
         let labels = LabelMap::new(OutputKind::SpeedSteering, &Default::default());
         let mut opts = IlOptions::paper(scratch.join("il"), contract, labels);
         opts.epochs = args.epochs;
@@ -89,7 +74,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
         opts.test_fraction = 0.0;
         opts.augment = Augment::JETBOT;
         opts.progress = false;
-        opts.device = args.device;
+        opts.device = args.target.device;
         let mut rates = Vec::new();
         il::train(&data, &opts, |e| rates.push(e.images_per_s))?;
         let pipeline = rates.iter().sum::<f64>() / rates.len().max(1) as f64;
@@ -98,7 +83,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             100.0 * pipeline / raw,
             s = args.input_size,
             b = args.batch,
-            d = args.device,
+            d = args.target.device,
         );
     }
     if !skips(&args, "ddpg") {
@@ -110,7 +95,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
         opts.eval_every = 0;
         opts.eval_seconds = 1.0;
         opts.warmup_updates = 0;
-        opts.device = args.device;
+        opts.device = args.target.device;
         let report = ddpg::train(&opts, |_| {}, |_, _| {})?;
         println!(
             "DDPG frozen backbone {s}x{s}, heads on {d}: {} environment steps in {} episodes, {:.1} steps/s with {} updates (batch {}, {} per step) (target >= 50)",
@@ -121,12 +106,12 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             opts.agent.batch,
             opts.updates_per_step,
             s = args.input_size,
-            d = args.device,
+            d = args.target.device,
         );
     }
     if !skips(&args, "backbone") {
         let secs = backbone_update_seconds(
-            args.device,
+            args.target.device,
             args.input_size,
             args.backbone_batch,
             args.backbone_updates,
@@ -135,7 +120,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
             "DDPG trainable backbones {s}x{s} batch {b} on {d}: {secs:.2} s per update (actor + twin critics + targets, each its own ResNet-18)",
             s = args.input_size,
             b = args.backbone_batch,
-            d = args.device,
+            d = args.target.device,
         );
     }
     let _ = std::fs::remove_dir_all(&scratch);

@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use jetpilot::train::TrainDevice;
 use jetpilot::train::ddpg::noise::NoiseKind;
 use jetpilot::train::ddpg::{self, DdpgOptions};
 
@@ -107,11 +106,8 @@ pub struct DdpgArgs {
     /// where one transition holds two frames: about 220 KB at 96x96).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     replay_capacity: Option<u64>,
-    /// Where the networks train: flex (burn's CPU backend) or, with the build feature
-    /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
-    /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
-    #[arg(long, default_value = "flex", value_name = "DEVICE")]
-    device: TrainDevice,
+    #[command(flatten)]
+    target: super::train::DeviceArg,
 }
 
 pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
@@ -137,7 +133,7 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     opts.warmup_updates = args.warmup_updates;
     opts.ort_threads = args.threads;
     opts.train_backbone = args.train_backbone;
-    opts.device = args.device;
+    opts.device = args.target.device;
     opts.replay_capacity = match args.replay_capacity {
         Some(n) => n as usize,
         None if args.train_backbone => 10_000,

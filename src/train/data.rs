@@ -101,6 +101,26 @@ pub struct Dataset {
     pub warnings: Vec<String>,
 }
 
+impl Dataset {
+    /// `n` frames of random pixels at `size` with random (speed, steering) labels, seeded:
+    /// for benchmarks and tests that need a dataset, not a task.
+    pub fn random(size: u32, n: usize, seed: u64) -> Self {
+        use rand::Rng;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let px = (3 * size * size) as usize;
+        Self {
+            size,
+            samples: (0..n)
+                .map(|_| Sample {
+                    pixels: (0..px).map(|_| rng.random()).collect(),
+                    label: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
+                })
+                .collect(),
+            warnings: Vec::new(),
+        }
+    }
+}
+
 /// What one folder contributes before decoding: image paths with labels, which are pixel
 /// positions (a JetBot xy folder: the label needs each image's size) or final values.
 struct Listing {

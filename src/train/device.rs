@@ -98,8 +98,8 @@ impl fmt::Display for TrainDevice {
 }
 
 impl TrainDevice {
-    /// The burn device, not yet opened (see [`TrainDevice::open`]).
-    pub fn burn(self) -> Result<Device, TrainError> {
+    /// The burn device, not yet opened.
+    fn burn(self) -> Result<Device, TrainError> {
         match self {
             Self::Flex => Ok(Device::flex()),
             Self::Wgpu(adapter) => wgpu_device(self, adapter),
@@ -196,7 +196,12 @@ fn wgpu_device(_: TrainDevice, adapter: WgpuAdapter) -> Result<Device, TrainErro
 
 #[cfg(not(feature = "train-wgpu"))]
 fn wgpu_device(device: TrainDevice, _: WgpuAdapter) -> Result<Device, TrainError> {
-    Err(not_built(device, "train-wgpu"))
+    Err(TrainError::Device {
+        device: device.to_string(),
+        reason: "this build has no such backend; rebuild with \
+                 `cargo build --release --features train-wgpu`"
+            .into(),
+    })
 }
 
 fn cuda_device(device: TrainDevice, _: usize) -> Result<Device, TrainError> {
@@ -207,16 +212,6 @@ fn cuda_device(device: TrainDevice, _: usize) -> Result<Device, TrainError> {
                  (build feature `train-wgpu`)"
             .into(),
     })
-}
-
-#[cfg(not(feature = "train-wgpu"))]
-fn not_built(device: TrainDevice, feature: &str) -> TrainError {
-    TrainError::Device {
-        device: device.to_string(),
-        reason: format!(
-            "this build has no such backend; rebuild with `cargo build --release --features {feature}`"
-        ),
-    }
 }
 
 #[cfg(test)]

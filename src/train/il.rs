@@ -576,20 +576,8 @@ mod tests {
     #[test]
     fn a_resumed_run_computes_what_an_unbroken_one_does() {
         use crate::policy::OutputKind;
-        use crate::train::data::Sample;
-        use rand::Rng;
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
         let size = 32u32;
-        let data = Dataset {
-            size,
-            samples: (0..12)
-                .map(|_| Sample {
-                    pixels: (0..size * size * 3).map(|_| rng.random()).collect(),
-                    label: [rng.random_range(0.0..1.0), rng.random_range(-1.0..1.0)],
-                })
-                .collect(),
-            warnings: Vec::new(),
-        };
+        let data = Dataset::random(size, 12, 1);
         let contract = ModelContract {
             input_size: size,
             output: OutputKind::SpeedSteering,
