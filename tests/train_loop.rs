@@ -297,10 +297,16 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
     ));
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(v["interventions"].as_f64().unwrap(), best_eval[3], "{v}");
     // The head runs in Rust on ONNX Runtime's features during training, inside the graph
-    // in the export: float rounding may tip a reward over the count threshold (a 600 s test
-    // measured 9100 vs 9072 rewards, the same 17 interventions).
+    // (MLAS's Gemm, whose summation order follows the CPU's SIMD level) in the export: the
+    // two steerings differ by float rounding, which can move a motor duty by one step and,
+    // in a closed loop, tip a reward over the count threshold or, rarely, an intervention
+    // (a 600 s test measured 9100 vs 9072 rewards, the same 17 interventions).
+    let interventions = v["interventions"].as_f64().unwrap();
+    assert!(
+        (interventions - best_eval[3]).abs() <= 1.0,
+        "{v} vs {best_eval:?}"
+    );
     let rewards = v["rewards"].as_f64().unwrap();
     assert!(
         (rewards - best_eval[5]).abs() <= 0.02 * best_eval[5] + 2.0,

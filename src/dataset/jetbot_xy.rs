@@ -72,6 +72,28 @@ fn to_pixel(v: f32, size: u32) -> u32 {
     p.clamp(0.0, max) as u32
 }
 
+/// The capture time of a sample named with a version-1 UUID (JetBot's `uuid1()`), in
+/// seconds since the Unix epoch; `None` for other names (a v4 UUID carries no time).
+///
+/// A uuid1 is `time_low-time_mid-1time_hi-clock-node` (hex): the timestamp is
+/// `time_hi << 48 | time_mid << 32 | time_low` in 100 ns steps since 1582-10-15.
+pub fn capture_time_s(name: &str) -> Option<f64> {
+    let stem = name.rsplit_once('.').map_or(name, |(s, _)| s);
+    let uuid = stem.strip_prefix("xy_")?.splitn(3, '_').nth(2)?;
+    let mut parts = uuid.split('-');
+    let (low, mid, hi) = (parts.next()?, parts.next()?, parts.next()?);
+    if low.len() != 8 || mid.len() != 4 || hi.len() != 4 || !hi.starts_with('1') {
+        return None;
+    }
+    let low = u64::from_str_radix(low, 16).ok()?;
+    let mid = u64::from_str_radix(mid, 16).ok()?;
+    let hi = u64::from_str_radix(hi, 16).ok()? & 0x0fff;
+    let ticks = (hi << 48) | (mid << 32) | low;
+    /// 100 ns steps from the Gregorian reform to the Unix epoch.
+    const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
+    Some((ticks as f64 - UNIX_EPOCH_TICKS as f64) / 1e7)
+}
+
 /// A random v4-style UUID string (`xxxxxxxx-xxxx-4xxx-[89ab]xxx-xxxxxxxxxxxx`), as JetBot
 /// names its samples with `uuid1()`/`uuid4()`. The caller owns the generator, so tests are
 /// deterministic.
@@ -362,5 +384,24 @@ mod tests {
             folder.samples()[0].label(224, 224),
             label(57, 101, 224, 224)
         );
+    }
+
+    #[test]
+    fn uuid1_names_carry_their_capture_time() {
+        // 2bef-11f0 ... : May 2025 (JetBot's notebook, shared/realdata).
+        let t = capture_time_s("xy_010_171_af415624-2bef-11f0-a827-e0e1a91dc0f8.jpg").unwrap();
+        // time_hi 0x1f0, time_mid 0x2bef, time_low 0xaf415624:
+        // ticks = 0x01f0_2bef_af41_5624 = 139_659_896_885_958_180 (100 ns since 1582-10-15)
+        // unix = (ticks - 122_192_928_000_000_000) / 1e7 = 1_746_696_888.595818 (2025-05-08)
+        assert!((t - 1_746_696_888.595_818).abs() < 1e-3, "{t}");
+        let later = capture_time_s("xy_012_154_add2983e-2bef-11f0-a827-e0e1a91dc0f8.jpg").unwrap();
+        assert!(later < t, "add2983e comes before af415624 in time_low");
+        // A v4 UUID (version nibble 4) and other names carry no time.
+        assert_eq!(
+            capture_time_s("xy_010_171_af415624-2bef-41f0-a827-e0e1a91dc0f8.jpg"),
+            None
+        );
+        assert_eq!(capture_time_s("xy_010_171_nouuid.jpg"), None);
+        assert_eq!(capture_time_s("photo.jpg"), None);
     }
 }

@@ -16,6 +16,7 @@
 //! every complete record before it.
 
 pub mod jetbot_xy;
+pub mod labelled;
 pub mod tub;
 
 /// Errors from reading or writing a data set. Every variant names the file or folder.
@@ -91,7 +92,7 @@ pub(crate) fn looks_like_jpeg(bytes: &[u8]) -> bool {
 }
 
 /// Decodes an image file into RGB8: `(width, height, pixels)`.
-pub(crate) fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
+pub fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
     let img = image::open(path).map_err(|source| match source {
         image::ImageError::IoError(e) => DatasetError::Io {
             path: path.display().to_string(),
@@ -104,6 +105,25 @@ pub(crate) fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
     })?;
     let rgb = img.to_rgb8();
     Ok((rgb.width(), rgb.height(), rgb.into_raw()))
+}
+
+/// Why an image could not be read, without the path (the caller names the file): "the file
+/// is empty" for a zero-byte file, which the image crate reports only as an unknown format.
+pub fn short_reason(e: &DatasetError) -> String {
+    match e {
+        DatasetError::Io { source, .. } => source.to_string(),
+        DatasetError::Image { path, source } => {
+            let empty = std::fs::metadata(path)
+                .map(|m| m.len() == 0)
+                .unwrap_or(false);
+            if empty {
+                "the file is empty (0 bytes)".into()
+            } else {
+                format!("cannot decode: {source}")
+            }
+        }
+        other => other.to_string(),
+    }
 }
 
 /// JPEG-encodes an RGB8 frame into `out` (cleared first, so its allocation is reused):

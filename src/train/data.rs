@@ -1,6 +1,6 @@
-//! Demonstrations as training samples: owns reading JetBot xy folders and our tubs into
-//! frames cached at the network's input size, the label each frame gets, and the seeded
-//! train/test split.
+//! Demonstrations as training samples: owns decoding the labelled frames of JetBot xy
+//! folders and our tubs (listed by [`crate::dataset::labelled`]) into frames cached at the
+//! network's input size, and the seeded train/test split.
 //!
 //! Frames are decoded and resized once, in parallel, by the daemon's own [`Preprocessor`]
 //! (same resize, same filter), so the trainer sees the pixels `jetpilot run` will feed the
@@ -16,73 +16,17 @@
 //! Only the human's steps (`user/mode = user`) of a tub are demonstrations; the autopilot's
 //! are left out.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use super::TrainError;
-use crate::control::SteeringGains;
-use crate::dataset::jetbot_xy::XyFolder;
-use crate::dataset::tub::{DriveMode, TubReader, TubRecord};
-use crate::policy::{ModelContract, OutputKind, Preprocessor};
+use crate::dataset::labelled::{self, LabelledFrame};
+use crate::policy::{ModelContract, Preprocessor};
 
-/// How labels are made for one output kind.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LabelMap {
-    pub output: OutputKind,
-    pub speed_gain: f32,
-    pub steering_gain: f32,
-}
-
-impl LabelMap {
-    pub fn new(output: OutputKind, gains: &SteeringGains) -> Self {
-        Self {
-            output,
-            speed_gain: gains.speed_gain,
-            steering_gain: gains.steering_gain,
-        }
-    }
-
-    /// `[speed, steering]` for wheel commands, inverting the `speed_steering` law (the
-    /// derivative and integral terms are left out: a demonstration has no PID state).
-    pub fn speed_steering(&self, left: f32, right: f32) -> [f32; 2] {
-        let speed = if self.speed_gain > 1e-6 {
-            ((left + right) / 2.0 / self.speed_gain).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let steering = if self.steering_gain > 1e-6 {
-            (left - right) / 2.0 / self.steering_gain
-        } else {
-            0.0
-        };
-        [speed, steering]
-    }
-
-    /// The label of a tub record, or `None` when it carries nothing to learn from.
-    pub fn for_record(&self, rec: &TubRecord) -> Option<[f32; 2]> {
-        match self.output {
-            OutputKind::Xy => rec.target.map(|(x, y)| [x, y]),
-            OutputKind::SpeedSteering => {
-                let (l, r) = rec.wheels.unwrap_or((
-                    rec.user_throttle + rec.user_angle,
-                    rec.user_throttle - rec.user_angle,
-                ));
-                Some(self.speed_steering(l, r))
-            }
-        }
-    }
-
-    /// Which label component a horizontal flip negates: JetBot's x, or the steering.
-    pub fn mirrored_component(&self) -> usize {
-        match self.output {
-            OutputKind::Xy => 0,
-            OutputKind::SpeedSteering => 1,
-        }
-    }
-}
+pub use crate::dataset::labelled::LabelMap;
 
 /// One cached frame and its label.
 #[derive(Debug, Clone, PartialEq)]
@@ -121,77 +65,10 @@ impl Dataset {
     }
 }
 
-/// What one folder contributes before decoding: image paths with labels, which are pixel
-/// positions (a JetBot xy folder: the label needs each image's size) or final values.
-struct Listing {
-    items: Vec<(PathBuf, [f32; 2])>,
-    pixel_labels: bool,
-}
-
-/// Lists a tub (a folder with `manifest.json`) or a JetBot xy folder.
-fn list(dir: &Path, map: &LabelMap, warnings: &mut Vec<String>) -> Result<Listing, TrainError> {
-    let data_err = |reason: String| TrainError::Data {
-        path: dir.display().to_string(),
-        reason,
-    };
-    if dir.join("manifest.json").is_file() {
-        let tub = TubReader::open(dir).map_err(|e| data_err(e.to_string()))?;
-        warnings.extend(tub.warnings().iter().cloned());
-        let mut out = Vec::new();
-        let (mut autopilot, mut unlabelled) = (0usize, 0usize);
-        for rec in tub.records() {
-            if rec.mode != DriveMode::User {
-                autopilot += 1;
-                continue;
-            }
-            match map.for_record(rec) {
-                Some(label) => out.push((tub.image_path(rec), label)),
-                None => unlabelled += 1,
-            }
-        }
-        if autopilot > 0 {
-            warnings.push(format!(
-                "{}: {autopilot} autopilot records left out (only user/mode = user is a demonstration)",
-                dir.display()
-            ));
-        }
-        if unlabelled > 0 {
-            warnings.push(format!(
-                "{}: {unlabelled} records without target/x, target/y left out",
-                dir.display()
-            ));
-        }
-        return Ok(Listing {
-            items: out,
-            pixel_labels: false,
-        });
-    }
-    if map.output != OutputKind::Xy {
-        // An xy folder has target points only; say so rather than fail on the listing.
-        if !dir.is_dir() {
-            return Err(data_err("not a folder".into()));
-        }
-        return Err(data_err(
-            "a JetBot xy folder has target-point labels: train it with --head xy (speed_steering \
-             needs a tub with wheels or user/angle, user/throttle)"
-                .into(),
-        ));
-    }
-    let folder = XyFolder::open(dir).map_err(|e| data_err(e.to_string()))?;
-    warnings.extend(folder.warnings().iter().cloned());
-    // The label needs the image size: JetBot's files are 224x224, but read it to be sure.
-    let mut out = Vec::with_capacity(folder.samples().len());
-    for s in folder.samples() {
-        out.push((s.path.clone(), [s.px as f32, s.py as f32]));
-    }
-    Ok(Listing {
-        items: out,
-        pixel_labels: true,
-    })
-}
-
 /// Reads every folder in `dirs` into frames resized for `contract`, decoding on `threads`
 /// threads. Labels of xy folders are made from the pixel position and each image's size.
+/// A file that cannot be read or decoded (a zero-byte or truncated JPEG, a missing image)
+/// is skipped with a warning naming it; folders that give no usable frame are an error.
 pub fn load(
     dirs: &[PathBuf],
     contract: &ModelContract,
@@ -199,38 +76,57 @@ pub fn load(
     threads: usize,
 ) -> Result<Dataset, TrainError> {
     let mut warnings = Vec::new();
-    let mut jobs: Vec<(PathBuf, [f32; 2], bool)> = Vec::new();
+    let mut jobs: Vec<LabelledFrame> = Vec::new();
     for dir in dirs {
-        let listing = list(dir, map, &mut warnings)?;
-        for (path, label) in listing.items {
-            jobs.push((path, label, listing.pixel_labels));
-        }
+        let listing = labelled::list(dir, map).map_err(|e| TrainError::Data {
+            path: dir.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        warnings.extend(listing.warnings);
+        jobs.extend(listing.frames);
     }
     if jobs.is_empty() {
         return Err(nothing_in(dirs, "no demonstrations to learn from"));
     }
     let threads = threads.clamp(1, jobs.len());
     let chunk = jobs.len().div_ceil(threads);
-    let results: Vec<Result<Vec<Sample>, TrainError>> = std::thread::scope(|scope| {
+    let results: Vec<Option<Vec<Decoded>>> = std::thread::scope(|scope| {
         let handles: Vec<_> = jobs
             .chunks(chunk)
             .map(|part| scope.spawn(|| decode_part(part, contract)))
             .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join().unwrap_or_else(|_| {
-                    Err(TrainError::Data {
-                        path: "(decoder thread)".into(),
-                        reason: "panicked".into(),
-                    })
-                })
-            })
-            .collect()
+        handles.into_iter().map(|h| h.join().ok()).collect()
     });
     let mut samples = Vec::with_capacity(jobs.len());
+    let mut skipped = 0usize;
     for r in results {
-        samples.extend(r?);
+        let Some(part) = r else {
+            return Err(TrainError::Data {
+                path: "(decoder thread)".into(),
+                reason: "panicked".into(),
+            });
+        };
+        for d in part {
+            match d {
+                Ok(s) => samples.push(s),
+                Err(w) => {
+                    skipped += 1;
+                    warnings.push(w);
+                }
+            }
+        }
+    }
+    if samples.is_empty() {
+        return Err(nothing_in(
+            dirs,
+            &format!("none of the {skipped} images could be read (see the warnings above)"),
+        ));
+    }
+    if skipped > 0 {
+        warnings.push(format!(
+            "{skipped} of {} images skipped: they cannot be read or decoded",
+            skipped + samples.len()
+        ));
     }
     Ok(Dataset {
         size: contract.input_size,
@@ -251,31 +147,26 @@ pub fn nothing_in(dirs: &[PathBuf], reason: &str) -> TrainError {
     }
 }
 
-fn decode_part(
-    part: &[(PathBuf, [f32; 2], bool)],
-    contract: &ModelContract,
-) -> Result<Vec<Sample>, TrainError> {
+/// A decoded sample, or the warning that says why a file was skipped.
+type Decoded = Result<Sample, String>;
+
+fn decode_part(part: &[LabelledFrame], contract: &ModelContract) -> Vec<Decoded> {
     let mut pre = Preprocessor::new(contract);
-    let mut out = Vec::with_capacity(part.len());
-    for (path, label, pixel_label) in part {
-        let data_err = |reason: String| TrainError::Data {
-            path: path.display().to_string(),
-            reason,
-        };
-        let (w, h, rgb) = crate::dataset::load_rgb(path).map_err(|e| data_err(e.to_string()))?;
-        let label = if *pixel_label {
-            let (x, y) = crate::dataset::jetbot_xy::label(label[0] as u32, label[1] as u32, w, h);
-            [x, y]
-        } else {
-            *label
-        };
-        let pixels = pre
-            .resize(w, h, &rgb)
-            .map_err(|e| data_err(e.to_string()))?
-            .to_vec();
-        out.push(Sample { pixels, label });
-    }
-    Ok(out)
+    part.iter()
+        .map(|f| {
+            let skipped = |reason: String| format!("{}: skipped, {reason}", f.path.display());
+            let (w, h, rgb) = crate::dataset::load_rgb(&f.path)
+                .map_err(|e| skipped(crate::dataset::short_reason(&e)))?;
+            let pixels = pre
+                .resize(w, h, &rgb)
+                .map_err(|e| skipped(e.to_string()))?
+                .to_vec();
+            Ok(Sample {
+                pixels,
+                label: f.label.value(w, h),
+            })
+        })
+        .collect()
 }
 
 /// A seeded split of `0..n` into (train, test) indices; `test_fraction` of them (at least
@@ -294,6 +185,8 @@ pub fn split(n: usize, test_fraction: f32, seed: u64) -> (Vec<usize>, Vec<usize>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dataset::tub::{DriveMode, TubRecord};
+    use crate::policy::OutputKind;
 
     fn map(output: OutputKind) -> LabelMap {
         LabelMap {
