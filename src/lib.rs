@@ -18,6 +18,7 @@ pub mod dataset;
 pub mod drive;
 pub mod hw;
 pub mod policy;
+pub mod score;
 pub mod sim;
 #[cfg(feature = "train")]
 pub mod train;

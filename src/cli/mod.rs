@@ -9,6 +9,7 @@ mod model;
 mod panel;
 mod run;
 mod samples;
+mod score;
 mod sim;
 #[cfg(feature = "train")]
 mod train;
@@ -74,6 +75,9 @@ enum Command {
     /// Score a model with the paper's protocol: a 600 s simulated test, interventions,
     /// autonomy value, reward count, laps, mean speed.
     Eval(sim::EvalArgs),
+    /// Score a model on labelled frames (JetBot xy folders, tubs): pixel error or MSE
+    /// against the mean-label baseline, a per-frame CSV and a picture.
+    Score(score::ScoreArgs),
     /// Train policies: imitation learning on demonstrations, DDPG fine-tuning in the
     /// simulator (needs a build with `--features train`).
     #[cfg(feature = "train")]
@@ -105,6 +109,7 @@ pub fn main() -> ExitCode {
         Command::Samples(args) => samples::main(args),
         Command::Sim(args) => sim::sim(args),
         Command::Eval(args) => sim::eval(args),
+        Command::Score(args) => score::main(args),
         #[cfg(feature = "train")]
         Command::Train(cmd) => train::main(cmd),
         #[cfg(not(feature = "train"))]

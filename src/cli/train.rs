@@ -136,8 +136,12 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     });
     let t0 = std::time::Instant::now();
     let dataset = data::load(&args.data, &contract, &labels, threads)?;
-    for w in dataset.warnings.iter().take(10) {
+    const SHOWN: usize = 20;
+    for w in dataset.warnings.iter().take(SHOWN) {
         tracing::warn!("{w}");
+    }
+    if dataset.warnings.len() > SHOWN {
+        tracing::warn!("... and {} more warnings", dataset.warnings.len() - SHOWN);
     }
     tracing::info!(
         samples = dataset.samples.len(),
@@ -185,5 +189,11 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         il::csv_path(&args.out).display(),
         il::png_path(&args.out).display()
     );
+    if dataset.skipped > 0 {
+        println!(
+            "skipped {} unreadable image(s): empty, truncated or missing files (named in the warnings above)",
+            dataset.skipped
+        );
+    }
     Ok(ExitCode::SUCCESS)
 }

@@ -91,7 +91,8 @@ pub fn capture_time_s(name: &str) -> Option<f64> {
     let ticks = (hi << 48) | (mid << 32) | low;
     /// 100 ns steps from the Gregorian reform to the Unix epoch.
     const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
-    Some((ticks as f64 - UNIX_EPOCH_TICKS as f64) / 1e7)
+    // Subtract in integers: as f64, 1.4e17 ticks would lose the 100 ns steps.
+    Some((ticks as i64 - UNIX_EPOCH_TICKS as i64) as f64 / 1e7)
 }
 
 /// A random v4-style UUID string (`xxxxxxxx-xxxx-4xxx-[89ab]xxx-xxxxxxxxxxxx`), as JetBot

@@ -168,6 +168,17 @@ pub fn list(dir: &Path, map: &LabelMap) -> Result<Listing> {
                 .into(),
         ));
     }
+    let subfolders = data_subfolders(dir)?;
+    if !subfolders.is_empty() {
+        // A folder of data folders (e.g. one per recording session or camera tilt): one
+        // level down, in name order.
+        for sub in subfolders {
+            let part = list(&sub, map)?;
+            out.frames.extend(part.frames);
+            out.warnings.extend(part.warnings);
+        }
+        return Ok(out);
+    }
     let folder = XyFolder::open(dir)?;
     out.warnings.extend(folder.warnings().iter().cloned());
     for s in folder.samples() {
@@ -179,6 +190,25 @@ pub fn list(dir: &Path, map: &LabelMap) -> Result<Listing> {
         });
     }
     Ok(out)
+}
+
+/// The subfolders of `dir` when it holds no image files of its own, else none.
+fn data_subfolders(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut subs = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(super::io_err(dir))? {
+        let path = entry.map_err(super::io_err(dir))?.path();
+        if path.is_dir() {
+            subs.push(path);
+        } else if path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"))
+        {
+            return Ok(Vec::new());
+        }
+    }
+    subs.sort();
+    Ok(subs)
 }
 
 /// Splits frames by capture time: the earliest `1 - test_fraction` of them train, the

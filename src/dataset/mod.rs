@@ -91,9 +91,27 @@ pub(crate) fn looks_like_jpeg(bytes: &[u8]) -> bool {
     bytes.len() >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8 && bytes[2] == 0xFF
 }
 
+/// Whether a JPEG's last bytes hold its end-of-image marker (FF D9); a few bytes of
+/// padding after it, as some encoders write, are allowed.
+fn ends_like_jpeg(bytes: &[u8]) -> bool {
+    let tail = &bytes[bytes.len().saturating_sub(64)..];
+    tail.windows(2).any(|w| w == [0xFF, 0xD9])
+}
+
 /// Decodes an image file into RGB8: `(width, height, pixels)`.
+///
+/// A JPEG without its end-of-image marker (a copy or a write cut short) is an error:
+/// decoders fill the missing rows in silently, which would put a grey half-frame into a
+/// data set.
 pub fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
-    let img = image::open(path).map_err(|source| match source {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    if looks_like_jpeg(&bytes) && !ends_like_jpeg(&bytes) {
+        return Err(DatasetError::Format {
+            path: path.display().to_string(),
+            reason: "truncated JPEG (no end-of-image marker)".into(),
+        });
+    }
+    let img = image::load_from_memory(&bytes).map_err(|source| match source {
         image::ImageError::IoError(e) => DatasetError::Io {
             path: path.display().to_string(),
             source: e,
@@ -112,6 +130,7 @@ pub fn load_rgb(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>)> {
 pub fn short_reason(e: &DatasetError) -> String {
     match e {
         DatasetError::Io { source, .. } => source.to_string(),
+        DatasetError::Format { reason, .. } => reason.clone(),
         DatasetError::Image { path, source } => {
             let empty = std::fs::metadata(path)
                 .map(|m| m.len() == 0)

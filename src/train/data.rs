@@ -43,6 +43,8 @@ pub struct Dataset {
     pub samples: Vec<Sample>,
     /// Files or records left out, and why.
     pub warnings: Vec<String>,
+    /// Images listed but not read (empty, truncated, missing): each has a warning.
+    pub skipped: usize,
 }
 
 impl Dataset {
@@ -61,6 +63,7 @@ impl Dataset {
                 })
                 .collect(),
             warnings: Vec::new(),
+            skipped: 0,
         }
     }
 }
@@ -117,9 +120,19 @@ pub fn load(
         }
     }
     if samples.is_empty() {
+        let unread: Vec<&str> = warnings
+            .iter()
+            .filter(|w| w.contains(": skipped, "))
+            .take(3)
+            .map(String::as_str)
+            .collect();
         return Err(nothing_in(
             dirs,
-            &format!("none of the {skipped} images could be read (see the warnings above)"),
+            &format!(
+                "none of the {skipped} images could be read ({}{})",
+                unread.join("; "),
+                if skipped > unread.len() { "; ..." } else { "" }
+            ),
         ));
     }
     if skipped > 0 {
@@ -132,6 +145,7 @@ pub fn load(
         size: contract.input_size,
         samples,
         warnings,
+        skipped,
     })
 }
 
@@ -253,5 +267,51 @@ mod tests {
         assert_ne!(split(100, 0.1, 8).1, split(100, 0.1, 7).1);
         assert_eq!(split(5, 0.1, 0).1.len(), 1, "at least one test sample");
         assert_eq!(split(5, 0.0, 0).1.len(), 0);
+    }
+
+    #[test]
+    fn unreadable_images_are_skipped_by_name_and_a_folder_of_them_is_an_error() {
+        use crate::dataset::{encode_jpeg, jetbot_xy};
+        let dir = tempfile::tempdir().unwrap();
+        let mut jpeg = Vec::new();
+        encode_jpeg(&vec![128u8; 32 * 32 * 3], 32, 32, &mut jpeg).unwrap();
+        jetbot_xy::write_sample(dir.path(), 16, 8, &jpeg, "a").unwrap();
+        jetbot_xy::write_sample(dir.path(), 8, 16, &jpeg, "b").unwrap();
+        std::fs::write(dir.path().join("xy_010_010_empty.jpg"), b"").unwrap();
+        std::fs::write(
+            dir.path().join("xy_010_010_cut.jpg"),
+            &jpeg[..jpeg.len() / 2],
+        )
+        .unwrap();
+        let contract = ModelContract {
+            input_size: 16,
+            ..ModelContract::default()
+        };
+        let dirs = [dir.path().to_path_buf()];
+        let data = load(&dirs, &contract, &map(OutputKind::Xy), 2).unwrap();
+        assert_eq!((data.samples.len(), data.skipped), (2, 2));
+        let text = data.warnings.join("\n");
+        assert!(
+            text.contains("xy_010_010_empty.jpg: skipped, the file is empty"),
+            "{text}"
+        );
+        assert!(
+            text.contains("xy_010_010_cut.jpg: skipped, truncated JPEG"),
+            "{text}"
+        );
+        assert!(text.contains("2 of 4 images skipped"), "{text}");
+        // (16 - 16) / 16 = 0 and (8 - 16) / 16 = -0.5 for the 32x32 frame "a".
+        assert!(data.samples.iter().any(|s| s.label == [0.0, -0.5]));
+
+        for name in ["xy_016_008_a.jpg", "xy_008_016_b.jpg"] {
+            std::fs::remove_file(dir.path().join(name)).unwrap();
+        }
+        let err = load(&dirs, &contract, &map(OutputKind::Xy), 2)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("none of the 2 images could be read") && err.contains("xy_010_010_"),
+            "{err}"
+        );
     }
 }

@@ -1,0 +1,275 @@
+//! `jetpilot score`: a model on labelled frames (JetBot xy folders, tubs), through the
+//! daemon's own preprocessing and ONNX Runtime session, against the mean-label baseline;
+//! writes a per-frame CSV and a picture of the frames with label and prediction.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use jetpilot::config::Config;
+use jetpilot::control::SteeringGains;
+use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
+use jetpilot::policy::contract::ChannelOrder;
+use jetpilot::policy::ort_policy::{ContractSource, OrtOptions};
+use jetpilot::policy::runtime::Provider;
+use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
+use jetpilot::score::{self, Scorecard, sheet};
+
+#[derive(Debug, clap::Args)]
+pub struct ScoreArgs {
+    /// The ONNX model to score.
+    #[arg(long, value_name = "FILE")]
+    model: PathBuf,
+    /// Labelled frames: a JetBot xy folder (xy_XXX_YYY_<uuid>.jpg) or a tub; repeat for
+    /// several.
+    #[arg(long, value_name = "DIR", required = true)]
+    data: Vec<PathBuf>,
+    /// Score only the latest FRACTION of the frames by capture time (the uuid1 in JetBot
+    /// file names, tub timestamps); the baseline's mean label comes from the earlier ones.
+    /// Neighbouring frames are near-duplicates, so this is the honest test split.
+    #[arg(long, value_name = "FRACTION")]
+    split_by_time: Option<f32>,
+    /// Where the per-frame CSV and the picture go (default: score-<model name>).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Frames in the picture, worst first.
+    #[arg(long, default_value_t = 48, value_name = "N")]
+    grid: usize,
+    /// Config whose steering gains turn a tub's wheel commands into speed_steering labels.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// For a model without jetpilot metadata (JetBot's notebook exports feed BGR): the
+    /// channel order its input expects.
+    #[arg(long, value_enum, default_value = "rgb")]
+    channel_order: Order,
+    /// ONNX Runtime intra-op threads (0: ONNX Runtime decides).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Order {
+    Rgb,
+    Bgr,
+}
+
+/// One scored frame.
+struct Scored {
+    frame: LabelledFrame,
+    label: [f32; 2],
+    prediction: [f32; 2],
+    error: f64,
+}
+
+pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
+    if let Some(f) = args.split_by_time
+        && !(f > 0.0 && f < 1.0)
+    {
+        anyhow::bail!("--split-by-time must be between 0 and 1 (exclusive), got {f}");
+    }
+    let fallback = ModelContract {
+        channel_order: match args.channel_order {
+            Order::Rgb => ChannelOrder::Rgb,
+            Order::Bgr => ChannelOrder::Bgr,
+        },
+        ..ModelContract::default()
+    };
+    let mut policy = OrtPolicy::load(
+        &args.model,
+        &OrtOptions {
+            library: None,
+            providers: &[Provider::Cpu],
+            intra_threads: args.threads,
+            fallback_contract: &fallback,
+        },
+    )?;
+    let contract = policy.contract().clone();
+    println!(
+        "model {}: {} head, {s}x{s} {} input ({})",
+        args.model.display(),
+        contract.output.as_str(),
+        contract.channel_order.as_str(),
+        match policy.contract_source() {
+            ContractSource::ModelMetadata => "contract from the model's metadata",
+            ContractSource::Config => "no jetpilot metadata: JetBot's defaults",
+        },
+        s = contract.input_size,
+    );
+    let gains = match &args.config {
+        Some(path) => Config::load(path)?.control.gains(),
+        None => SteeringGains::default(),
+    };
+    let map = LabelMap::new(contract.output, &gains);
+
+    let mut frames = Vec::new();
+    let mut warnings = Vec::new();
+    for dir in &args.data {
+        let listing =
+            labelled::list(dir, &map).with_context(|| format!("data {}", dir.display()))?;
+        println!(
+            "data {}: {} labelled frames",
+            dir.display(),
+            listing.frames.len()
+        );
+        frames.extend(listing.frames);
+        warnings.extend(listing.warnings);
+    }
+    let (reference, scored_frames) = match args.split_by_time {
+        Some(f) => {
+            let (train, test) = labelled::split_by_time(frames, f)?;
+            println!(
+                "split by capture time: the latest {} frames are scored, the earlier {} give the baseline's mean label",
+                test.len(),
+                train.len()
+            );
+            (Some(train), test)
+        }
+        None => (None, frames),
+    };
+    if scored_frames.is_empty() {
+        anyhow::bail!("no frames to score (the split left none)");
+    }
+
+    // Run the model on every frame that can be read.
+    let mut pre = Preprocessor::new(&contract);
+    let mut scored = Vec::with_capacity(scored_frames.len());
+    let mut pictures = Vec::with_capacity(scored_frames.len());
+    let mut skipped = 0usize;
+    for frame in scored_frames {
+        let (w, h, rgb) = match jetpilot::dataset::load_rgb(&frame.path) {
+            Ok(img) => img,
+            Err(e) => {
+                skipped += 1;
+                warnings.push(format!(
+                    "{}: skipped, {}",
+                    frame.path.display(),
+                    jetpilot::dataset::short_reason(&e)
+                ));
+                continue;
+            }
+        };
+        let input = pre
+            .run(w, h, &rgb)
+            .with_context(|| format!("preprocessing {}", frame.path.display()))?;
+        let prediction = policy
+            .infer(input)
+            .with_context(|| format!("inference on {}", frame.path.display()))?;
+        let label = frame.label.value(w, h);
+        let error = score::frame_error(contract.output, label, prediction);
+        scored.push(Scored {
+            frame,
+            label,
+            prediction,
+            error,
+        });
+        pictures.push((w, h, rgb));
+    }
+    for w in &warnings {
+        tracing::warn!("{w}");
+    }
+    if scored.is_empty() {
+        anyhow::bail!(
+            "none of the frames could be read ({skipped} skipped: see the warnings above)"
+        );
+    }
+
+    let labels: Vec<[f32; 2]> = scored.iter().map(|s| s.label).collect();
+    let predictions: Vec<[f32; 2]> = scored.iter().map(|s| s.prediction).collect();
+    let (baseline_label, baseline_from) = match &reference {
+        Some(train) if !train.is_empty() => (
+            score::mean_label(&reference_labels(train)),
+            "the earlier frames' mean label",
+        ),
+        _ => (
+            score::mean_label(&labels),
+            "the scored frames' own mean label",
+        ),
+    };
+    let card = Scorecard::new(contract.output, &labels, &predictions, baseline_label);
+    let what = match contract.output {
+        OutputKind::Xy => "pixel error in the 224x224 frame",
+        OutputKind::SpeedSteering => "error",
+    };
+    println!("{what} over {} frames:", card.frames);
+    println!("  model     {}", card.model);
+    println!(
+        "  baseline  {}   (always ({:.3}, {:.3}): {baseline_from})",
+        card.baseline, baseline_label[0], baseline_label[1]
+    );
+    println!("  model / baseline: {:.2}", card.ratio());
+
+    let out = args.out.clone().unwrap_or_else(|| default_out(&args.model));
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let csv = out.join("frames.csv");
+    std::fs::write(&csv, frames_csv(&scored))
+        .with_context(|| format!("writing {}", csv.display()))?;
+    let mut order: Vec<usize> = (0..scored.len()).collect();
+    order.sort_by(|&a, &b| scored[b].error.total_cmp(&scored[a].error));
+    let tiles: Vec<sheet::Tile<'_>> = order
+        .iter()
+        .take(args.grid)
+        .map(|&i| sheet::Tile {
+            rgb: &pictures[i].2,
+            width: pictures[i].0,
+            height: pictures[i].1,
+            label: scored[i].label,
+            prediction: scored[i].prediction,
+        })
+        .collect();
+    let png = out.join("frames.png");
+    sheet::draw(contract.output, &tiles, 8, 112)
+        .save(&png)
+        .with_context(|| format!("writing {}", png.display()))?;
+    println!(
+        "wrote {} (every frame) and {} ({} frames, worst first; green: label, red: model)",
+        csv.display(),
+        png.display(),
+        tiles.len()
+    );
+    if skipped > 0 {
+        println!("skipped {skipped} unreadable image(s), named in the warnings above");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The labels of the baseline's frames; xy pixel labels need each image's size, read from
+/// its header (a file whose header cannot be read is left out of the mean).
+fn reference_labels(frames: &[LabelledFrame]) -> Vec<[f32; 2]> {
+    frames
+        .iter()
+        .filter_map(|f| {
+            let (w, h) = image::image_dimensions(&f.path).ok()?;
+            Some(f.label.value(w, h))
+        })
+        .collect()
+}
+
+fn default_out(model: &Path) -> PathBuf {
+    let stem = model
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "model".into());
+    PathBuf::from(format!("score-{stem}"))
+}
+
+fn frames_csv(scored: &[Scored]) -> String {
+    let mut s = String::from("file,time_s,label_0,label_1,prediction_0,prediction_1,error\n");
+    for f in scored {
+        let _ = writeln!(
+            s,
+            "{},{},{:.5},{:.5},{:.5},{:.5},{:.4}",
+            f.frame.path.display(),
+            f.frame
+                .time_s
+                .map(|t| format!("{t:.3}"))
+                .unwrap_or_default(),
+            f.label[0],
+            f.label[1],
+            f.prediction[0],
+            f.prediction[1],
+            f.error
+        );
+    }
+    s
+}

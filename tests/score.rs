@@ -1,0 +1,185 @@
+//! `jetpilot score` on a small generated JetBot xy folder with a known answer: a ResNet-18
+//! whose fc weights are zero answers its fc bias, (0.25, -0.5) = pixel (140, 56), for
+//! every frame, so each frame's error is the distance from its label to that pixel.
+//! Bad files (zero bytes, truncated) are skipped by name and the run goes on.
+//!
+//! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use jetpilot::dataset::{encode_jpeg, jetbot_xy};
+use jetpilot::policy::ModelContract;
+use jetpilot::policy::onnx::{self, Resnet18Weights};
+
+fn jetpilot(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(args)
+        .output()
+        .expect("run jetpilot")
+}
+
+/// A model that answers (0.25, -0.5) whatever it sees.
+fn constant_model(dir: &Path) -> PathBuf {
+    let mut w = Resnet18Weights::random(2, 1);
+    w.tensors.get_mut("fc.weight").unwrap().1.fill(0.0);
+    w.tensors.get_mut("fc.bias").unwrap().1 = vec![0.25, -0.5];
+    let contract = ModelContract {
+        input_size: 32,
+        ..ModelContract::default()
+    };
+    let path = dir.join("constant.onnx");
+    onnx::write_model(
+        &path,
+        &onnx::resnet18_model(32, &w, &contract, "test").unwrap(),
+    )
+    .unwrap();
+    path
+}
+
+/// Labels (pixels of the 224x224 frame) in capture order, and the model's distance to each:
+/// 0, 30, 40 and |(60, 56)| = 82.0776 px.
+const LABELS: [(u32, u32); 4] = [(140, 56), (170, 56), (140, 96), (200, 112)];
+
+/// The folder: the four frames named with uuid1s whose times increase in that order, a
+/// zero-byte JPEG and a truncated one.
+fn xy_folder(dir: &Path) -> PathBuf {
+    let out = dir.join("xy");
+    std::fs::create_dir_all(&out).unwrap();
+    let mut jpeg = Vec::new();
+    encode_jpeg(&vec![90u8; 224 * 224 * 3], 224, 224, &mut jpeg).unwrap();
+    for (i, (px, py)) in LABELS.iter().enumerate() {
+        // time_low in 100 ns steps: one frame a second.
+        let uuid1 = format!("{:08x}-0000-1000-8000-000000000000", i * 10_000_000);
+        jetbot_xy::write_sample(&out, *px, *py, &jpeg, &uuid1).unwrap();
+    }
+    std::fs::write(out.join("xy_100_100_empty.jpg"), b"").unwrap();
+    std::fs::write(
+        out.join("xy_100_100_truncated.jpg"),
+        &jpeg[..jpeg.len() / 3],
+    )
+    .unwrap();
+    out
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn score_gives_the_known_pixel_errors_and_skips_bad_files_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = constant_model(dir.path());
+    let data = xy_folder(dir.path());
+    let out = dir.path().join("score");
+    let run = jetpilot(&[
+        "score",
+        "--model",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let (stdout, stderr) = text(&run);
+    assert!(run.status.success(), "{stdout}\n{stderr}");
+    // Model: errors 0, 30, 40, 82.08 -> mean 38.0, median 35.0, p90 82.1.
+    assert!(
+        stdout.contains("model     mean 38.0 px, median 35.0 px, p90 82.1 px"),
+        "{stdout}"
+    );
+    // Baseline: the mean label, pixel (162.5, 80): 32.90, 25.14, 27.61, 49.30 -> mean 33.7.
+    assert!(stdout.contains("baseline  mean 33.7 px"), "{stdout}");
+    assert!(stdout.contains("over 4 frames"), "{stdout}");
+    for bad in ["xy_100_100_empty.jpg", "xy_100_100_truncated.jpg"] {
+        assert!(
+            stderr.contains(bad) && stderr.contains("skipped"),
+            "{bad}: {stderr}"
+        );
+    }
+    assert!(stderr.contains("the file is empty"), "{stderr}");
+    assert!(stdout.contains("skipped 2 unreadable image(s)"), "{stdout}");
+    // One CSV row per scored frame, with the prediction.
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 4, "{csv}");
+    assert!(
+        rows.iter().all(|r| r.contains(",0.25000,-0.50000,")),
+        "{csv}"
+    );
+    let png = image::open(out.join("frames.png")).unwrap();
+    assert!(png.width() > 100 && png.height() > 100);
+}
+
+#[test]
+fn a_split_by_time_scores_the_latest_frames_against_the_earlier_mean() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = constant_model(dir.path());
+    let data = xy_folder(dir.path());
+    // The two bad files carry no uuid1: a split by time cannot place them.
+    let run = jetpilot(&[
+        "score",
+        "--model",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--split-by-time",
+        "0.5",
+        "--out",
+        dir.path().join("s").to_str().unwrap(),
+    ]);
+    let (stdout, stderr) = text(&run);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("xy_100_100_") && stderr.contains("no capture time"),
+        "{stderr}"
+    );
+    for bad in ["xy_100_100_empty.jpg", "xy_100_100_truncated.jpg"] {
+        std::fs::remove_file(data.join(bad)).unwrap();
+    }
+    let run = jetpilot(&[
+        "score",
+        "--model",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--split-by-time",
+        "0.5",
+        "--out",
+        dir.path().join("s").to_str().unwrap(),
+    ]);
+    let (stdout2, stderr) = text(&run);
+    assert!(run.status.success(), "{stdout}{stdout2}\n{stderr}");
+    // The latest two: errors 40 and 82.08 -> mean 61.0. Baseline: the earlier two's mean,
+    // pixel (155, 56): |(15, 40)| = 42.72 and |(45, 56)| = 71.84 -> mean 57.3.
+    assert!(stdout2.contains("over 2 frames"), "{stdout2}");
+    assert!(stdout2.contains("model     mean 61.0 px"), "{stdout2}");
+    assert!(stdout2.contains("baseline  mean 57.3 px"), "{stdout2}");
+}
+
+#[test]
+fn a_folder_with_no_readable_frame_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = constant_model(dir.path());
+    let data = dir.path().join("bad");
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::write(data.join("xy_010_020_a.jpg"), b"").unwrap();
+    let run = jetpilot(&[
+        "score",
+        "--model",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        dir.path().join("s").to_str().unwrap(),
+    ]);
+    let (_, stderr) = text(&run);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("xy_010_020_a.jpg") && stderr.contains("none of the frames could be read"),
+        "{stderr}"
+    );
+}
