@@ -21,6 +21,7 @@ pub mod closed_loop;
 pub mod demos;
 pub mod env;
 pub mod expert;
+pub mod lens;
 pub mod realtime;
 pub mod render;
 pub mod reward;
