@@ -1,5 +1,5 @@
-//! The simulated JetBot camera: a pinhole model of the wide CSI lens, mounted on the robot,
-//! and the geometry that links its pixels with points on the flat mat.
+//! The simulated JetBot camera: a pinhole or fisheye model of the wide CSI lens, mounted on
+//! the robot, and the geometry that links its pixels with points on the flat mat.
 //!
 //! This module owns the camera's placement on the robot (height, forward offset, downward
 //! tilt), its intrinsics (square pixels, principal point at the image centre, focal length
@@ -19,13 +19,27 @@
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::lens::Lens;
 use super::{Pose2, SimError};
 
 /// Ground points farther than this (horizontally, from the point under the camera) are
 /// treated as "not on the ground": the renderer draws a wall there.
 pub const MAX_GROUND_RANGE_M: f32 = 5.0;
 
-/// A pinhole camera mounted on the robot, looking forward and pitched down.
+/// The lens projection of a [`CameraModel`] (see [`super::lens`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LensKind {
+    /// Straight lines stay straight; `hfov_deg` spans the image width.
+    Pinhole,
+    /// OpenCV's fisheye model (Kannala-Brandt): `r = f * theta_d`,
+    /// `theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)`, with
+    /// `f` such that `fisheye_fov_deg` spans the image diagonal when `k = 0`. JetBot's
+    /// IMX219 lens is sold as 160 degrees (diagonal).
+    Fisheye,
+}
+
+/// A camera mounted on the robot, looking forward and pitched down.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraModel {
@@ -33,8 +47,15 @@ pub struct CameraModel {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
-    /// Horizontal field of view in degrees (a JetBot's wide lens, modelled as a pinhole).
+    /// `pinhole` or `fisheye`.
+    pub lens: LensKind,
+    /// Pinhole: horizontal field of view in degrees.
     pub hfov_deg: f32,
+    /// Fisheye: field of view across the image diagonal, degrees (of the equidistant
+    /// part: with `fisheye_k` all zero it is exact).
+    pub fisheye_fov_deg: f32,
+    /// Fisheye: OpenCV's k1..k4.
+    pub fisheye_k: [f32; 4],
     /// Height of the optical centre above the ground, metres.
     pub height_m: f32,
     /// Downward pitch of the optical axis below the horizontal, degrees.
@@ -48,7 +69,10 @@ impl Default for CameraModel {
         Self {
             width: 224,
             height: 224,
+            lens: LensKind::Pinhole,
             hfov_deg: 120.0,
+            fisheye_fov_deg: 160.0,
+            fisheye_k: [0.0; 4],
             height_m: 0.10,
             tilt_deg: 25.0,
             forward_m: 0.05,
@@ -78,6 +102,24 @@ impl CameraModel {
         if !(self.hfov_deg.is_finite() && self.hfov_deg > 1.0 && self.hfov_deg < 170.0) {
             return bad(format!("hfov_deg {} must be in (1, 170)", self.hfov_deg));
         }
+        if self.lens == LensKind::Fisheye {
+            let fov = self.fisheye_fov_deg;
+            if !(fov.is_finite() && fov > 1.0 && fov < 300.0) {
+                return bad(format!("fisheye_fov_deg {fov} must be in (1, 300)"));
+            }
+            if self.fisheye_k.iter().any(|k| !k.is_finite()) {
+                return bad(format!("fisheye_k {:?} must be finite", self.fisheye_k));
+            }
+            // Every pixel of the frame must have a ray: the polynomial must still rise at
+            // the corners.
+            let (w, h) = (self.width as f64, self.height as f64);
+            if self.lens().unproject(0.0, 0.0).is_none() || self.lens().unproject(w, h).is_none() {
+                return bad(format!(
+                    "fisheye_k {:?}: the distortion polynomial turns back inside the image",
+                    self.fisheye_k
+                ));
+            }
+        }
         if !(self.height_m.is_finite() && self.height_m > 0.0) {
             return bad(format!("height_m {} must be > 0", self.height_m));
         }
@@ -90,8 +132,31 @@ impl CameraModel {
         Ok(())
     }
 
+    /// The lens projection with this camera's intrinsics.
+    pub fn lens(&self) -> Lens {
+        let (w, h) = (self.width as f64, self.height as f64);
+        match self.lens {
+            LensKind::Pinhole => Lens::pinhole(self.hfov_deg as f64, w, h),
+            LensKind::Fisheye => {
+                let Lens::Fisheye { f, cu, cv, .. } =
+                    Lens::equidistant(self.fisheye_fov_deg as f64, w.hypot(h), w / 2.0, h / 2.0)
+                else {
+                    unreachable!("equidistant() builds a fisheye")
+                };
+                Lens::Fisheye {
+                    f,
+                    cu,
+                    cv,
+                    k: self.fisheye_k.map(f64::from),
+                }
+            }
+        }
+    }
+
     fn focal64(&self) -> f64 {
-        (self.width as f64 / 2.0) / (self.hfov_deg as f64 / 2.0).to_radians().tan()
+        match self.lens() {
+            Lens::Pinhole { f, .. } | Lens::Fisheye { f, .. } => f,
+        }
     }
 
     /// Focal length in pixels (the same along u and v: square pixels).
@@ -116,11 +181,22 @@ impl CameraModel {
         Matrix3::new(f, 0.0, cu, 0.0, f, cv, 0.0, 0.0, 1.0)
     }
 
-    /// Row `v` (pixels, may be fractional or negative) of the horizon: the ground is seen
-    /// only below it (`v > horizon_v`). The camera has no roll, so the horizon is a row.
+    /// Row `v` (pixels, may be fractional or negative) of the horizon in the centre
+    /// column: the ground is seen only below it (`v > horizon_v`). The camera has no roll,
+    /// so for a pinhole the horizon is this row; a fisheye bends it down towards the sides.
     pub fn horizon_v(&self) -> f32 {
-        let cv = self.height as f64 / 2.0;
-        (cv - self.focal64() * (self.tilt_deg as f64).to_radians().tan()) as f32
+        let (s, c) = (self.tilt_deg as f64).to_radians().sin_cos();
+        // The level ray straight ahead, in the camera frame (y down, z along the axis).
+        let level = Vector3::new(0.0, -s, c);
+        match self.lens().project(level) {
+            Some((_, v)) => v as f32,
+            None => f32::NEG_INFINITY,
+        }
+    }
+
+    /// Whether the ground-plane homographies describe this camera (a pinhole).
+    pub fn has_homography(&self) -> bool {
+        self.lens == LensKind::Pinhole
     }
 
     fn extrinsics(&self, pose: &Pose2) -> Extrinsics {
@@ -157,12 +233,7 @@ impl CameraModel {
 
     fn pixel_to_ground64(&self, pose: &Pose2, u: f32, v: f32) -> Option<(f64, f64)> {
         let e = self.extrinsics(pose);
-        let f = self.focal64();
-        let d_cam = Vector3::new(
-            (u as f64 - self.width as f64 / 2.0) / f,
-            (v as f64 - self.height as f64 / 2.0) / f,
-            1.0,
-        );
+        let d_cam = self.lens().unproject(u as f64, v as f64)?;
         let d = e.rot * d_cam;
         // At or above the horizon, or NaN input.
         if d.z.is_nan() || d.z >= -1e-12 {
@@ -193,11 +264,8 @@ impl CameraModel {
         if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
-        let f = self.focal64();
-        Some((
-            (self.width as f64 / 2.0 + f * p.x / p.z) as f32,
-            (self.height as f64 / 2.0 + f * p.y / p.z) as f32,
-        ))
+        let (u, v) = self.lens().project(p)?;
+        Some((u as f32, v as f32))
     }
 
     /// The ground point in the robot frame, `(forward, left)` metres from the axle
@@ -216,7 +284,9 @@ impl CameraModel {
         self.intrinsics64() * e.rot.transpose() * lift
     }
 
-    /// Ground-plane homography `H = K R^T [e1 | e2 | -C]` for a robot at `pose`: maps the
+    /// Ground-plane homography `H = K R^T [e1 | e2 | -C]` for a robot at `pose` (a pinhole's
+    /// only: see [`Self::has_homography`]; a fisheye's pixels are not a homography of the
+    /// ground). Maps the
     /// homogeneous ground point `(x, y, 1)` (world metres) to the pixel `(u w, v w, w)`,
     /// where `w` is the depth along the optical axis (metres; `w <= 0`: behind the camera).
     pub fn ground_homography(&self, pose: &Pose2) -> Matrix3<f32> {
@@ -394,5 +464,72 @@ mod tests {
         assert_eq!(cam.width, 96);
         assert_eq!(cam.tilt_deg, 25.0);
         assert!(serde_json::from_str::<CameraModel>(r#"{"fov": 3}"#).is_err());
+    }
+
+    fn jetbot_fisheye() -> CameraModel {
+        CameraModel {
+            lens: LensKind::Fisheye,
+            ..CameraModel::default()
+        }
+    }
+
+    #[test]
+    fn fisheye_pixels_round_trip_through_the_ground() {
+        let cam = jetbot_fisheye();
+        cam.validate().unwrap();
+        let pose = Pose2::new(0.9, 1.3, 1.1);
+        let mut checked = 0;
+        for j in 0..cam.height {
+            for i in (0..cam.width).step_by(5) {
+                let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
+                if let Some((x, y)) = cam.pixel_to_ground(&pose, u, v) {
+                    let (u2, v2) = cam.ground_to_pixel(&pose, x, y).unwrap();
+                    assert!(
+                        (u2 - u).abs() < 1e-2 && (v2 - v).abs() < 1e-2,
+                        "({u}, {v}) -> ({x}, {y}) -> ({u2}, {v2})"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 3000, "only {checked} pixels checked");
+        assert!(!cam.has_homography() && CameraModel::default().has_homography());
+    }
+
+    #[test]
+    fn the_fisheye_sees_more_ground_and_bends_its_horizon() {
+        let (pin, fish) = (CameraModel::default(), jetbot_fisheye());
+        // 160 degrees over the 316.8 px diagonal: f = 113.44 px; the level ray is 25
+        // degrees (0.4363 rad) above the axis: 112 - 113.44 * 0.4363 = 62.50.
+        assert!(
+            (fish.horizon_v() - 62.50).abs() < 0.01,
+            "{}",
+            fish.horizon_v()
+        );
+        // The horizon curves down towards the sides: the top-left corner looks at the sky,
+        // but the left edge at the centre-column horizon row sees no ground either.
+        let pose = Pose2::default();
+        assert!(fish.pixel_to_ground(&pose, 0.5, 0.5).is_none());
+        assert!(
+            fish.pixel_to_ground(&pose, 0.5, fish.horizon_v() + 1.0)
+                .is_none()
+        );
+        // Near the bottom corners the fisheye sees ground far to the side, wider than the
+        // pinhole.
+        let (_, l_pin) = pin.pixel_to_robot_ground(0.5, 223.5).unwrap();
+        let (_, l_fish) = fish.pixel_to_robot_ground(0.5, 223.5).unwrap();
+        assert!(
+            l_fish > l_pin,
+            "fisheye {l_fish} m vs pinhole {l_pin} m to the left"
+        );
+        // A fisheye whose polynomial turns back inside the image is refused.
+        let bad = CameraModel {
+            fisheye_k: [-0.5, 0.0, 0.0, 0.0],
+            ..jetbot_fisheye()
+        };
+        assert!(bad.validate().is_err());
+        let cam: CameraModel =
+            serde_json::from_str(r#"{"lens": "fisheye", "fisheye_k": [0.01, 0, 0, 0]}"#).unwrap();
+        assert_eq!((cam.lens, cam.fisheye_k[0]), (LensKind::Fisheye, 0.01));
     }
 }

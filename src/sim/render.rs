@@ -933,6 +933,53 @@ mod tests {
     }
 
     #[test]
+    fn a_fisheye_view_bends_the_straight_road_edges() {
+        use crate::sim::camera::LensKind;
+        let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
+        let camera = CameraModel {
+            lens: LensKind::Fisheye,
+            ..CameraModel::default()
+        };
+        let r = Renderer::new(tex, camera).unwrap();
+        let (w, h) = (camera.width, camera.height);
+        let mut frame = vec![0u8; r.frame_len()];
+        let pose = Pose2::new(0.9, 0.5, FRAC_PI_2);
+        r.render(&pose, &mut frame);
+        // Wall in the top corners, road at the bottom centre.
+        assert!(
+            px(&frame, w, 0, 0)
+                .iter()
+                .zip(DEFAULT_WALL_RGB)
+                .all(|(a, b)| a.abs_diff(b) < 25)
+        );
+        assert!(
+            px(&frame, w, w / 2 - 20, h - 1)
+                .iter()
+                .zip(ROAD)
+                .all(|(a, b)| a.abs_diff(b) < 3)
+        );
+        // The right edge line's inner side (x = 1.03) is drawn where the fisheye projects
+        // it, 0.2, 0.5 and 1.2 m ahead, where a pinhole would put it elsewhere.
+        let yellow = |p: [u8; 3]| p[0] > 150 && p[1] > 130 && p[2] < 120;
+        let pinhole = CameraModel::default();
+        for d in [0.2f32, 0.5, 1.2] {
+            let (u, v) = camera.ground_to_pixel(&pose, 1.03, pose.y + d).unwrap();
+            let found = (w / 2..w)
+                .find(|&x| yellow(px(&frame, w, x, v as u32)))
+                .unwrap_or_else(|| panic!("{d} m ahead: no edge in row {v}"));
+            assert!(
+                (found as f32 - u).abs() <= 2.0,
+                "{d} m ahead: edge at {found}, projected {u}"
+            );
+            let (up, vp) = pinhole.ground_to_pixel(&pose, 1.03, pose.y + d).unwrap();
+            assert!(
+                (up - u).hypot(vp - v) > 3.0,
+                "{d} m ahead: pinhole ({up}, {vp}) vs ({u}, {v})"
+            );
+        }
+    }
+
+    #[test]
     fn camera_view_of_a_straight_road() {
         let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
         let camera = CameraModel::default();

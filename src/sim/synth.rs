@@ -91,6 +91,14 @@ impl Synthesizer {
     pub fn new(recording: Recording, half_road_width_m: f32) -> Result<Self, SimError> {
         let camera = recording.camera;
         camera.validate()?;
+        if !camera.has_homography() {
+            return Err(SimError::Invalid(
+                "camera: replayed-frame synthesis re-projects through the ground homography, \
+                 which only a pinhole has: use lens = \"pinhole\" with frames = \"replay\" \
+                 (fisheye synthesis is not built yet; frames = \"render\" draws fisheye views)"
+                    .into(),
+            ));
+        }
         if !(half_road_width_m.is_finite() && half_road_width_m > 0.0) {
             return Err(SimError::Invalid(format!(
                 "half road width {half_road_width_m} m must be positive"
@@ -469,6 +477,26 @@ mod tests {
     /// Reached: 38.5 dB at 224x224 (39 dB in the curve), 36.7 dB at 96x96.
     const PSNR_BOUND_224: f64 = 35.0;
     const PSNR_BOUND_96: f64 = 33.0;
+
+    #[test]
+    fn a_fisheye_recording_is_refused_until_synthesis_supports_it() {
+        let camera = CameraModel {
+            lens: crate::sim::camera::LensKind::Fisheye,
+            ..CameraModel::default()
+        };
+        let r = renderer(camera);
+        let f = frame(&r, Pose2::new(0.9, 0.6, FRAC_PI_2));
+        let err = Synthesizer::new(
+            Recording {
+                camera,
+                frames: vec![f],
+            },
+            0.14,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("lens = \"pinhole\""), "{err}");
+    }
 
     #[test]
     fn synthesis_at_the_recorded_pose_reproduces_the_frame() {
