@@ -15,9 +15,9 @@
 //! distance from the principal point. The fisheye model also images rays at 90 degrees and
 //! beyond, which a pinhole cannot.
 //!
-//! Not yet used by the renderer and the replayed-frame synthesis (they assume a pinhole
-//! through `CameraModel`'s ground homography); that is the next step of the sim-to-real
-//! work.
+//! `CameraModel` (`[sim.camera] lens`) projects through it, and so the renderer's per-pixel
+//! tables do. Replayed-frame synthesis still needs the pinhole: it re-projects through the
+//! ground homography, which a fisheye does not have.
 
 use nalgebra::Vector3;
 
