@@ -62,6 +62,21 @@ fn xy_folder(dir: &Path) -> PathBuf {
     out
 }
 
+/// `jetpilot score --model M --data D --out O` plus `extra`.
+fn score(model: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "score",
+        "--model",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    jetpilot(&args)
+}
+
 fn text(o: &Output) -> (String, String) {
     (
         String::from_utf8_lossy(&o.stdout).into_owned(),
@@ -75,15 +90,7 @@ fn score_gives_the_known_pixel_errors_and_skips_bad_files_by_name() {
     let model = constant_model(dir.path());
     let data = xy_folder(dir.path());
     let out = dir.path().join("score");
-    let run = jetpilot(&[
-        "score",
-        "--model",
-        model.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let run = score(&model, &data, &out, &[]);
     let (stdout, stderr) = text(&run);
     assert!(run.status.success(), "{stdout}\n{stderr}");
     // Model: errors 0, 30, 40, 82.08 -> mean 38.0, median 35.0, p90 82.1.
@@ -120,17 +127,12 @@ fn a_split_by_time_scores_the_latest_frames_against_the_earlier_mean() {
     let model = constant_model(dir.path());
     let data = xy_folder(dir.path());
     // The two bad files carry no uuid1: a split by time cannot place them.
-    let run = jetpilot(&[
-        "score",
-        "--model",
-        model.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--split-by-time",
-        "0.5",
-        "--out",
-        dir.path().join("s").to_str().unwrap(),
-    ]);
+    let run = score(
+        &model,
+        &data,
+        &dir.path().join("s"),
+        &["--split-by-time", "0.5"],
+    );
     let (stdout, stderr) = text(&run);
     assert!(!run.status.success());
     assert!(
@@ -140,17 +142,12 @@ fn a_split_by_time_scores_the_latest_frames_against_the_earlier_mean() {
     for bad in ["xy_100_100_empty.jpg", "xy_100_100_truncated.jpg"] {
         std::fs::remove_file(data.join(bad)).unwrap();
     }
-    let run = jetpilot(&[
-        "score",
-        "--model",
-        model.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--split-by-time",
-        "0.5",
-        "--out",
-        dir.path().join("s").to_str().unwrap(),
-    ]);
+    let run = score(
+        &model,
+        &data,
+        &dir.path().join("s"),
+        &["--split-by-time", "0.5"],
+    );
     let (stdout2, stderr) = text(&run);
     assert!(run.status.success(), "{stdout}{stdout2}\n{stderr}");
     // The latest two: errors 40 and 82.08 -> mean 61.0. Baseline: the earlier two's mean,
@@ -167,15 +164,7 @@ fn a_folder_with_no_readable_frame_is_an_error() {
     let data = dir.path().join("bad");
     std::fs::create_dir_all(&data).unwrap();
     std::fs::write(data.join("xy_010_020_a.jpg"), b"").unwrap();
-    let run = jetpilot(&[
-        "score",
-        "--model",
-        model.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        dir.path().join("s").to_str().unwrap(),
-    ]);
+    let run = score(&model, &data, &dir.path().join("s"), &[]);
     let (_, stderr) = text(&run);
     assert!(!run.status.success());
     assert!(
