@@ -134,7 +134,6 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
     // Run the model on every frame that can be read.
     let mut pre = Preprocessor::new(&contract);
     let mut scored = Vec::with_capacity(scored_frames.len());
-    let mut pictures = Vec::with_capacity(scored_frames.len());
     let mut skipped = 0usize;
     for frame in scored_frames {
         let (w, h, rgb) = match jetpilot::dataset::load_rgb(&frame.path) {
@@ -163,7 +162,6 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
             prediction,
             error,
         });
-        pictures.push((w, h, rgb));
     }
     for w in &warnings {
         tracing::warn!("{w}");
@@ -204,17 +202,23 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
     let csv = out.join("frames.csv");
     std::fs::write(&csv, frames_csv(&scored))
         .with_context(|| format!("writing {}", csv.display()))?;
-    let mut order: Vec<usize> = (0..scored.len()).collect();
-    order.sort_by(|&a, &b| scored[b].error.total_cmp(&scored[a].error));
-    let tiles: Vec<sheet::Tile<'_>> = order
-        .iter()
+    // Only the frames in the picture are decoded again: a whole tub's frames are not kept
+    // in memory for it.
+    let mut order: Vec<&Scored> = scored.iter().collect();
+    order.sort_by(|a, b| b.error.total_cmp(&a.error));
+    let pictures: Vec<_> = order
+        .into_iter()
         .take(args.grid)
-        .map(|&i| sheet::Tile {
-            rgb: &pictures[i].2,
-            width: pictures[i].0,
-            height: pictures[i].1,
-            label: scored[i].label,
-            prediction: scored[i].prediction,
+        .filter_map(|s| Some((s, jetpilot::dataset::load_rgb(&s.frame.path).ok()?)))
+        .collect();
+    let tiles: Vec<sheet::Tile<'_>> = pictures
+        .iter()
+        .map(|(s, (w, h, rgb))| sheet::Tile {
+            rgb,
+            width: *w,
+            height: *h,
+            label: s.label,
+            prediction: s.prediction,
         })
         .collect();
     let png = out.join("frames.png");

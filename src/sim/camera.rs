@@ -137,19 +137,13 @@ impl CameraModel {
         let (w, h) = (self.width as f64, self.height as f64);
         match self.lens {
             LensKind::Pinhole => Lens::pinhole(self.hfov_deg as f64, w, h),
-            LensKind::Fisheye => {
-                let Lens::Fisheye { f, cu, cv, .. } =
-                    Lens::equidistant(self.fisheye_fov_deg as f64, w.hypot(h), w / 2.0, h / 2.0)
-                else {
-                    unreachable!("equidistant() builds a fisheye")
-                };
-                Lens::Fisheye {
-                    f,
-                    cu,
-                    cv,
-                    k: self.fisheye_k.map(f64::from),
-                }
-            }
+            LensKind::Fisheye => Lens::fisheye(
+                self.fisheye_fov_deg as f64,
+                w.hypot(h),
+                w / 2.0,
+                h / 2.0,
+                self.fisheye_k.map(f64::from),
+            ),
         }
     }
 

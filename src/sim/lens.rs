@@ -46,13 +46,14 @@ impl Lens {
     /// An equidistant fisheye (`k = 0`) whose `fov_deg` spans `span_px` pixels across the
     /// principal point: e.g. JetBot's 160 degree diagonal over a 224x224 frame's diagonal.
     pub fn equidistant(fov_deg: f64, span_px: f64, cu: f64, cv: f64) -> Self {
+        Self::fisheye(fov_deg, span_px, cu, cv, [0.0; 4])
+    }
+
+    /// A fisheye with distortion `k` whose equidistant part (`k = 0`) spans `fov_deg` over
+    /// `span_px` pixels.
+    pub fn fisheye(fov_deg: f64, span_px: f64, cu: f64, cv: f64, k: [f64; 4]) -> Self {
         let f = (span_px / 2.0) / (fov_deg / 2.0).to_radians();
-        Self::Fisheye {
-            f,
-            cu,
-            cv,
-            k: [0.0; 4],
-        }
+        Self::Fisheye { f, cu, cv, k }
     }
 
     /// A pinhole whose horizontal field of view `hfov_deg` spans `width` pixels.
