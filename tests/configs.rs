@@ -54,3 +54,27 @@ fn robot_configs_read_the_csi_camera_and_keep_state_in_var_lib() {
     }
     assert!(load("yahboom.toml").buzzer.enabled);
 }
+
+/// Every shipped track loads, closes and stays on the mat, both ways round; the experiment's
+/// tracks differ from the mat the demonstrations were recorded on.
+#[test]
+fn shipped_tracks_load_both_ways_round() {
+    use jetpilot::sim::track::Track;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/tracks");
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let track = Track::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let back = track.reversed();
+        assert!((back.length() - track.length()).abs() < 1e-4);
+        assert!(
+            track.length() > 4.0,
+            "{}: {}",
+            path.display(),
+            track.length()
+        );
+        names.push(track.name().to_string());
+    }
+    names.sort();
+    assert_eq!(names, ["jetbot_mat", "narrow", "s_bends", "sharp_corners"]);
+}

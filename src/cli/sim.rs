@@ -15,6 +15,29 @@ use jetpilot::sim::render::{top_down, write_png};
 use jetpilot::sim::reward::autonomy;
 use jetpilot::sim::setup::{self, SimRig};
 
+/// Which road to drive, over the config's `[sim]` (shared by `sim`, `eval` and
+/// `train ddpg`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct TrackArgs {
+    /// Track file (see config/tracks/), instead of the config's `sim.track`.
+    #[arg(long, value_name = "FILE")]
+    pub track: Option<PathBuf>,
+    /// Drive the track the other way round (the JetBot mat: clockwise), in the right lane.
+    #[arg(long)]
+    pub reverse: bool,
+}
+
+impl TrackArgs {
+    pub fn apply(&self, cfg: &mut Config) {
+        if let Some(t) = &self.track {
+            cfg.sim.track = Some(t.clone());
+        }
+        if self.reverse {
+            cfg.sim.reverse = true;
+        }
+    }
+}
+
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
     /// Config file: `[sim]` plus the robot's usual sections (the motor layout decides how the
@@ -59,6 +82,8 @@ pub struct SimArgs {
     /// frames) and `trace.png` (the mat from above with the driven path and interventions).
     #[arg(long, value_name = "DIR")]
     png: Option<PathBuf>,
+    #[command(flatten)]
+    road: TrackArgs,
 }
 
 #[derive(Debug, clap::Args)]
@@ -81,6 +106,8 @@ pub struct EvalArgs {
     /// Also write the top-down trace with interventions as a PNG.
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
+    #[command(flatten)]
+    road: TrackArgs,
 }
 
 /// The paper's numbers for one run.
@@ -267,6 +294,7 @@ fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()>
 
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     let mut cfg = Config::load(&args.config)?;
+    args.road.apply(&mut cfg);
     if let Some(s) = args.swerve_every {
         cfg.sim.expert.swerve_every_s = s;
     }
@@ -324,7 +352,8 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
-    let cfg = Config::load(&args.config)?;
+    let mut cfg = Config::load(&args.config)?;
+    args.road.apply(&mut cfg);
     let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);
     let (rig, driven) = drive(
         &cfg,

@@ -1,7 +1,7 @@
 //! `jetpilot train il` (imitation learning) and `jetpilot train ddpg` (fine-tuning in the
 //! simulator), built with the cargo feature `train`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
@@ -25,6 +25,52 @@ pub enum TrainCommand {
     /// Measure the trainer: burn's raw step against imitation learning's images/s, and
     /// DDPG's environment steps/s with the frozen backbone, updates included.
     Bench(super::train_bench::TrainBenchArgs),
+    /// Summarise the paper's experiment (scripts/paper-experiment.sh writes the manifest):
+    /// a Markdown table per track (mean ± sd over seeds after each wall budget) and
+    /// experiment_<track>.png (rewards and autonomy against wall time, seed bands).
+    Report(ReportArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ReportArgs {
+    /// The manifest: `budgets_min = [..]` and one `[[run]]` per method, seed and track.
+    #[arg(long, value_name = "FILE")]
+    manifest: PathBuf,
+    /// Folder for experiment.md and the figures (default: the manifest's folder).
+    #[arg(short, long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
+fn report_main(args: ReportArgs) -> anyhow::Result<ExitCode> {
+    use jetpilot::train::experiment;
+    let experiment::Experiment {
+        runs,
+        budgets_min: budgets,
+        test_seconds,
+    } = experiment::load(&args.manifest)?;
+    let out = match args.out {
+        Some(o) => o,
+        None => args
+            .manifest
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_default(),
+    };
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let table = experiment::markdown(&runs, &budgets, test_seconds);
+    let md = out.join("experiment.md");
+    std::fs::write(&md, &table).with_context(|| format!("writing {}", md.display()))?;
+    let max = budgets.iter().copied().fold(1.0, f64::max);
+    let (figures, warning) = experiment::figures(&runs, max, test_seconds, &out)?;
+    if let Some(w) = warning {
+        tracing::warn!("{w}");
+    }
+    println!("{table}");
+    println!("wrote {}", md.display());
+    for f in figures {
+        println!("wrote {}", f.display());
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -99,6 +145,7 @@ pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
         TrainCommand::Il(args) => il_main(args),
         TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
         TrainCommand::Bench(args) => super::train_bench::main(args),
+        TrainCommand::Report(args) => report_main(args),
     }
 }
 

@@ -88,6 +88,18 @@ pub struct DdpgArgs {
     /// --init, 0 without).
     #[arg(long)]
     anchor_weight: Option<f32>,
+    /// Let the anchor's weight fall linearly to 0 over this many updates (0: it stays).
+    #[arg(long, default_value_t = 0)]
+    anchor_decay_updates: u64,
+    /// Improve the actor by search instead of the critic's gradient: regress towards the
+    /// best-rated of its action and neighbours this far apart on steering (0: off; see
+    /// README, "the experiment").
+    #[arg(long, default_value_t = 0.0)]
+    search_step: f32,
+    /// Start this share of the training episodes shortly before a place where an earlier
+    /// episode left the road (0: always at a random place), as curriculum RL does.
+    #[arg(long, default_value_t = 0.0)]
+    failure_resets: f32,
     /// Plain DDPG: one critic, actor updated every step, no target smoothing (default: TD3's
     /// twin critics, delay 2, smoothing 0.1).
     #[arg(long)]
@@ -107,11 +119,14 @@ pub struct DdpgArgs {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     replay_capacity: Option<u64>,
     #[command(flatten)]
+    road: super::sim::TrackArgs,
+    #[command(flatten)]
     target: super::train::DeviceArg,
 }
 
 pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
-    let cfg = super::train::config(Some(&args.sim))?;
+    let mut cfg = super::train::config(Some(&args.sim))?;
+    args.road.apply(&mut cfg);
     let mut opts = DdpgOptions::new(args.out.clone(), cfg);
     opts.input_size = args.input_size;
     opts.init = args.init;
@@ -133,6 +148,13 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     opts.warmup_updates = args.warmup_updates;
     opts.ort_threads = args.threads;
     opts.train_backbone = args.train_backbone;
+    if !(0.0..=1.0).contains(&args.failure_resets) {
+        anyhow::bail!(
+            "--failure-resets is a share of the episodes, 0..1; got {}",
+            args.failure_resets
+        );
+    }
+    opts.failure_resets = args.failure_resets;
     opts.device = args.target.device;
     opts.replay_capacity = match args.replay_capacity {
         Some(n) => n as usize,
@@ -149,6 +171,8 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     a.anchor_weight = args
         .anchor_weight
         .unwrap_or(if opts.init.is_some() { 5.0 } else { 0.0 });
+    a.anchor_decay_updates = args.anchor_decay_updates;
+    a.search_step = args.search_step;
     if args.no_td3 {
         a.twin = false;
         a.policy_delay = 1;

@@ -38,6 +38,9 @@ pub enum FrameMode {
 pub struct SimConfig {
     /// Track file; unset: the built-in JetBot mat (config/tracks/jetbot_mat.toml).
     pub track: Option<PathBuf>,
+    /// Drive the track the other way round (the built-in mat: clockwise), still in the
+    /// right-hand lane.
+    pub reverse: bool,
     pub frames: FrameMode,
     /// `replay`: a tub (DonkeyCar v2) whose records carry `pose/x`, `pose/y`,
     /// `pose/heading` (real data with poses from a tracker, or `jetpilot sim --record`);
@@ -64,6 +67,7 @@ impl Default for SimConfig {
     fn default() -> Self {
         Self {
             track: None,
+            reverse: false,
             frames: FrameMode::Render,
             recording: None,
             record_spacing_m: 0.02,
@@ -111,12 +115,14 @@ fn renderer(cfg: &SimConfig, track: &Track) -> Result<Renderer, SimError> {
     Renderer::new(texture, cfg.camera)
 }
 
-/// Loads the track named by the config (or the built-in mat).
+/// Loads the track named by the config (or the built-in mat), the other way round with
+/// `reverse`.
 pub fn load_track(cfg: &SimConfig) -> Result<Track, SimError> {
-    match &cfg.track {
-        Some(p) => Track::load(p),
-        None => Ok(Track::jetbot_mat()),
-    }
+    let track = match &cfg.track {
+        Some(p) => Track::load(p)?,
+        None => Track::jetbot_mat(),
+    };
+    Ok(if cfg.reverse { track.reversed() } else { track })
 }
 
 /// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it

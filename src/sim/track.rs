@@ -404,6 +404,41 @@ impl Track {
         }
     }
 
+    /// The same road driven the other way round: the segments in reverse order with their
+    /// turns mirrored, starting where this track starts, facing back. The drive lane stays
+    /// the one on the robot's right (so a counter-clockwise layout becomes a clockwise one
+    /// in the other lane).
+    pub fn reversed(&self) -> Track {
+        let Some(first) = self.segs.first() else {
+            return self.clone();
+        };
+        let pieces = self
+            .segs
+            .iter()
+            .rev()
+            .map(|seg| match seg.geom {
+                Geom::Line { .. } => Piece::Line { length: seg.len },
+                Geom::Arc {
+                    radius,
+                    turn,
+                    sweep,
+                    ..
+                } => Piece::Arc {
+                    radius,
+                    angle: -turn * sweep,
+                },
+            })
+            .collect();
+        Track::assemble(Checked {
+            name: format!("{} (reversed)", self.name),
+            mat: self.mat,
+            lane_width: self.lane_width,
+            drive_lane: self.drive_lane,
+            start: [first.x0, first.y0, (first.h0 + PI).to_degrees()],
+            pieces,
+        })
+    }
+
     fn check_closed(&self) -> std::result::Result<(), String> {
         let (Some(first), Some(last)) = (self.segs.first(), self.segs.last()) else {
             return Err("no segments".into());
@@ -992,6 +1027,47 @@ angle = 180.0
         );
         let sum: f64 = t.segs.iter().map(|s| s.len).sum();
         assert!((t.length - sum).abs() < 1e-12);
+    }
+
+    #[test]
+    fn reversed_is_the_same_road_the_other_way_round() {
+        let t = mat();
+        let r = t.reversed();
+        assert!(r.check_closed().is_ok());
+        assert!((r.length - t.length).abs() < 1e-9);
+        assert_eq!(r.segment_count(), t.segment_count());
+        let start = r.start_pose();
+        assert!((start.x - 1.51).abs() < 1e-6 && (start.y - 1.20).abs() < 1e-6);
+        assert!((start.heading + PI as f32 / 2.0).abs() < 1e-6, "{start:?}");
+        // A point s along the reversed road is length - s along the original: same place,
+        // opposite heading and curvature, mirrored lateral offset.
+        for k in 1..60 {
+            let s = k as f32 * 0.1;
+            let p = r.pose_at(s, 0.07);
+            let q = t.pose_at(t.length() - s, -0.07);
+            assert!(
+                (p.x - q.x).abs() < 1e-4 && (p.y - q.y).abs() < 1e-4,
+                "s {s}"
+            );
+            assert!(wrap_angle(p.heading - q.heading - PI as f32).abs() < 1e-4);
+            // Away from the joints, where the curvature steps.
+            let (c, d) = (r.curvature_at(s), t.curvature_at(t.length() - s));
+            if (r.curvature_at(s - 0.01) - r.curvature_at(s + 0.01)).abs() < 1e-6 {
+                assert!((c + d).abs() < 1e-5, "s {s}: {c} vs {d}");
+            }
+        }
+        // The clockwise mat turns right overall; twice reversed is the original road.
+        let turned: f64 = r.segs.iter().map(|g| g.curvature() * g.len).sum();
+        assert!((turned + TAU).abs() < 1e-9, "{turned}");
+        let rr = r.reversed();
+        for k in 0..60 {
+            let s = k as f32 * 0.1;
+            let (a, b) = (rr.pose_at(s, 0.0), t.pose_at(s, 0.0));
+            assert!(
+                (a.x - b.x).abs() < 1e-4 && (a.y - b.y).abs() < 1e-4,
+                "s {s}"
+            );
+        }
     }
 
     #[test]

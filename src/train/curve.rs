@@ -431,8 +431,51 @@ pub fn plot_png(
         x: x_label,
         y: y_label,
     };
-    plot_png_inner(path, &labels, series, log_y, size, text)?;
+    let drawn = Drawn {
+        series,
+        bands: &[],
+        log_y,
+    };
+    plot_png_inner(path, &labels, &drawn, size, text)?;
     Ok(warning)
+}
+
+/// A shaded band around series `i` of a chart (seeds' mean ± sd): `(x, low, high)`
+/// points in x order, drawn in the series' colour, lighter.
+pub type Band = Vec<(f64, f64, f64)>;
+
+/// [`plot_png`] (linear y) with a shaded band behind each series: `bands[i]` belongs to
+/// `series[i]`; an empty band, or a missing one, draws none.
+pub fn plot_png_with_bands(
+    path: &Path,
+    (title, x_label, y_label): (&str, &str, &str),
+    series: &[Series],
+    bands: &[Band],
+    size: (u32, u32),
+) -> Result<Option<String>, CurveError> {
+    let (text, warning) = match ensure_font() {
+        Ok(_) => (true, None),
+        Err(tried) => (false, Some(no_font_warning(path, tried))),
+    };
+    let labels = Labels {
+        title,
+        x: x_label,
+        y: y_label,
+    };
+    let drawn = Drawn {
+        series,
+        bands,
+        log_y: false,
+    };
+    plot_png_inner(path, &labels, &drawn, size, text)?;
+    Ok(warning)
+}
+
+/// What one chart shows.
+struct Drawn<'a> {
+    series: &'a [Series],
+    bands: &'a [Band],
+    log_y: bool,
 }
 
 struct Labels<'a> {
@@ -445,11 +488,11 @@ struct Labels<'a> {
 fn plot_png_inner(
     path: &Path,
     labels: &Labels<'_>,
-    series: &[Series],
-    log_y: bool,
+    drawn: &Drawn<'_>,
     (w, h): (u32, u32),
     text: bool,
 ) -> Result<(), CurveError> {
+    let (series, log_y) = (drawn.series, drawn.log_y);
     let plot_err = |reason: String| CurveError::Plot {
         path: path.to_path_buf(),
         reason,
@@ -477,7 +520,20 @@ fn plot_png_inner(
             runs
         })
         .collect();
-    let all = || segments.iter().flatten().flatten();
+    let band_points: Vec<(f64, f64)> = drawn
+        .bands
+        .iter()
+        .flatten()
+        .flat_map(|&(x, lo, hi)| [(x, lo), (x, hi)])
+        .filter(|&(x, y)| drawable(x) && drawable(y) && (!log_y || y >= MIN_LOG))
+        .collect();
+    let all = || {
+        segments
+            .iter()
+            .flatten()
+            .flatten()
+            .chain(band_points.iter())
+    };
     let bounds = |f: fn(&(f64, f64)) -> f64| {
         all().map(f).fold(None, |acc: Option<(f64, f64)>, v| {
             Some(acc.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
@@ -494,6 +550,7 @@ fn plot_png_inner(
         let spec = Chart {
             labels,
             series,
+            bands: drawn.bands,
             segments: &segments,
             text,
             log_y,
@@ -591,6 +648,7 @@ fn tick_label(v: &f64) -> String {
 struct Chart<'a> {
     labels: &'a Labels<'a>,
     series: &'a [Series],
+    bands: &'a [Band],
     /// Per series, its runs of drawable points.
     segments: &'a [Vec<Vec<(f64, f64)>>],
     text: bool,
@@ -657,6 +715,28 @@ impl Chart<'_> {
             )))
             .map_err(|e| e.to_string())?;
 
+        for (i, band) in self.bands.iter().enumerate().take(self.series.len()) {
+            let ok: Vec<(f64, f64, f64)> = band
+                .iter()
+                .copied()
+                .filter(|&(x, lo, hi)| drawable(x) && drawable(lo) && drawable(hi))
+                .collect();
+            if ok.len() < 2 {
+                continue;
+            }
+            let outline: Vec<(f64, f64)> = ok
+                .iter()
+                .map(|&(x, lo, _)| (x, lo))
+                .chain(ok.iter().rev().map(|&(x, _, hi)| (x, hi)))
+                .collect();
+            let colour = COLOURS[i % COLOURS.len()];
+            chart
+                .draw_series(std::iter::once(Polygon::new(
+                    outline,
+                    colour.mix(0.18).filled(),
+                )))
+                .map_err(|e| e.to_string())?;
+        }
         let width = px(2.0);
         for (i, (s, runs)) in self.series.iter().zip(self.segments).enumerate() {
             let colour = COLOURS[i % COLOURS.len()];
@@ -939,7 +1019,12 @@ mod tests {
             x: "x",
             y: "y",
         };
-        plot_png_inner(&path, &labels, &two_series(), true, (300, 200), false).unwrap();
+        let drawn = Drawn {
+            series: &two_series(),
+            bands: &[],
+            log_y: true,
+        };
+        plot_png_inner(&path, &labels, &drawn, (300, 200), false).unwrap();
         assert_png(&path, (300, 200));
     }
 
@@ -1078,8 +1163,18 @@ mod tests {
                 .collect(),
         }];
         let linear = path.with_extension("linear.png");
-        plot_png_inner(&linear, &labels, &reward, false, (800, 500), true).unwrap();
+        let drawn = Drawn {
+            series: &reward,
+            bands: &[],
+            log_y: false,
+        };
+        plot_png_inner(&linear, &labels, &drawn, (800, 500), true).unwrap();
         let no_text = path.with_extension("notext.png");
-        plot_png_inner(&no_text, &labels, &series, true, (800, 500), false).unwrap();
+        let drawn = Drawn {
+            series: &series,
+            bands: &[],
+            log_y: true,
+        };
+        plot_png_inner(&no_text, &labels, &drawn, (800, 500), false).unwrap();
     }
 }

@@ -19,6 +19,7 @@ pub mod curve;
 pub mod data;
 pub mod ddpg;
 pub mod device;
+pub mod experiment;
 pub mod export;
 pub mod il;
 pub mod resnet;

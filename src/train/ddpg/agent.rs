@@ -53,6 +53,17 @@ pub struct AgentConfig {
     /// near-on-policy transitions drags all 512 head weights at once and the policy drifts
     /// off the road within a few hundred updates (measured).
     pub anchor_weight: f32,
+    /// The anchor's weight falls linearly to 0 over this many critic updates after the
+    /// warm-up (0: it stays), so the imitation policy guides the start and the critic,
+    /// once trained, decides.
+    pub anchor_decay_updates: u64,
+    /// Policy improvement by search instead of the critic's gradient (0: off): on each
+    /// sampled state the twin critics' minimum rates the actor's action moved by
+    /// {-2,-1,0,1,2} x this on steering and {-1,0,1} x half of it on speed, and the actor
+    /// regresses towards the best of the 15 (a step of bounded size, like supervised
+    /// learning, where the gradient of a critic fitted on a few thousand transitions can
+    /// point anywhere).
+    pub search_step: f32,
     /// Action bounds `[speed, steering]`.
     pub low: [f32; 2],
     pub high: [f32; 2],
@@ -74,6 +85,8 @@ impl Default for AgentConfig {
             bc_weight: 1.0,
             q_filter: true,
             anchor_weight: 0.0,
+            anchor_decay_updates: 0,
+            search_step: 0.0,
             low: [0.0, -1.0],
             high: [1.0, 1.0],
         }
@@ -101,6 +114,8 @@ pub struct Agent {
     actor_opt: burn::optim::ModuleOptimizer,
     critic_opts: Vec<burn::optim::ModuleOptimizer>,
     updates: u64,
+    /// Updates that trained the actor's side (after the warm-up): the anchor's clock.
+    acting_updates: u64,
 }
 
 /// A sampled batch, as tensors on one device.
@@ -190,6 +205,7 @@ impl Agent {
             device,
             inner,
             updates: 0,
+            acting_updates: 0,
         }
     }
 
@@ -324,6 +340,9 @@ impl Agent {
         self.critics = new_critics;
         self.updates += 1;
 
+        if train_actor {
+            self.acting_updates += 1;
+        }
         let mut actor_loss = None;
         if train_actor && self.updates % self.cfg.policy_delay.max(1) as u64 == 0 {
             actor_loss = Some(self.update_actor(&b)?);
@@ -339,12 +358,81 @@ impl Agent {
         })
     }
 
+    /// The search's targets (see [`AgentConfig::search_step`]): per sample, the best-rated
+    /// of the actor's action and its 14 neighbours, clamped to the bounds (a tie keeps the
+    /// actor's own).
+    fn searched_actions(&self, f: &Tensor<2>, a_pi: &Tensor<2>) -> Result<Tensor<2>, TrainError> {
+        let [n, _] = a_pi.dims();
+        let h = self.cfg.search_step;
+        let mut deltas = vec![[0.0f32, 0.0]];
+        for ds in [-1.0f32, 0.0, 1.0] {
+            for dt in [-2.0f32, -1.0, 0.0, 1.0, 2.0] {
+                if ds != 0.0 || dt != 0.0 {
+                    deltas.push([ds * h / 2.0, dt * h]);
+                }
+            }
+        }
+        let k = deltas.len();
+        let now = read(a_pi.clone().detach())?;
+        let mut candidates = Vec::with_capacity(k * n * 2);
+        for d in &deltas {
+            for i in 0..n {
+                let a = super::clamp_action([now[2 * i] + d[0], now[2 * i + 1] + d[1]], &self.cfg);
+                candidates.extend_from_slice(&a);
+            }
+        }
+        let fk = f.clone().detach().repeat_dim(0, k);
+        let ak =
+            Tensor::<2>::from_data(TensorData::new(candidates.clone(), [k * n, 2]), &f.device());
+        let mut q: Option<Tensor<2>> = None;
+        for c in &self.critics {
+            let qi = c.forward(fk.clone(), ak.clone()).detach();
+            q = Some(match q {
+                Some(acc) => acc.min_pair(qi),
+                None => qi,
+            });
+        }
+        let q = match q {
+            Some(q) => read(q)?,
+            None => return Ok(a_pi.clone().detach()),
+        };
+        let mut target = Vec::with_capacity(2 * n);
+        for i in 0..n {
+            let mut best = 0;
+            for j in 1..k {
+                if q[j * n + i] > q[best * n + i] {
+                    best = j;
+                }
+            }
+            target.extend_from_slice(&candidates[2 * (best * n + i)..2 * (best * n + i) + 2]);
+        }
+        Ok(Tensor::<2>::from_data(
+            TensorData::new(target, [n, 2]),
+            &a_pi.device(),
+        ))
+    }
+
+    /// The anchor's weight now: `anchor_weight`, falling linearly to 0 over
+    /// `anchor_decay_updates` updates after the warm-up when that is set.
+    pub fn anchor_weight(&self) -> f32 {
+        let w = self.cfg.anchor_weight;
+        match self.cfg.anchor_decay_updates {
+            0 => w,
+            n => w * (1.0 - self.acting_updates as f32 / n as f32).max(0.0),
+        }
+    }
+
     fn update_actor(&mut self, b: &BatchTensors) -> Result<f64, TrainError> {
         let critic = &self.critics[0];
         let a_pi = self.actor.forward(b.f.clone());
         let q_pi = critic.forward(b.f.clone(), a_pi.clone());
-        let scale = scalar(q_pi.clone().detach().abs().mean())?.max(1e-3);
-        let mut loss = q_pi.clone().mean().mul_scalar(-1.0 / scale);
+        let mut loss = if self.cfg.search_step > 0.0 {
+            let target = self.searched_actions(&b.f, &a_pi)?;
+            (a_pi.clone() - target).powi_scalar(2).sum_dim(1).mean()
+        } else {
+            let scale = scalar(q_pi.clone().detach().abs().mean())?.max(1e-3);
+            q_pi.clone().mean().mul_scalar(-1.0 / scale)
+        };
 
         if self.cfg.bc_weight > 0.0 && b.n_demo > 0 {
             let mut mask = b.demo.clone();
@@ -357,12 +445,13 @@ impl Agent {
             let bc = (sq * mask).sum().div_scalar(b.n_demo as f32);
             loss = loss + bc.mul_scalar(self.cfg.bc_weight);
         }
-        if self.cfg.anchor_weight > 0.0 {
+        let anchor_weight = self.anchor_weight();
+        if anchor_weight > 0.0 {
             let f_plain = Tensor::<2>::from_data(b.f.clone().into_data(), &self.inner);
             let a0 = self.anchor.forward(f_plain);
             let a0 = Tensor::<2>::from_data(a0.into_data(), &self.device);
             let drift = (a_pi.clone() - a0).powi_scalar(2).sum_dim(1).mean();
-            loss = loss + drift.mul_scalar(self.cfg.anchor_weight);
+            loss = loss + drift.mul_scalar(anchor_weight);
         }
         // Keep the outputs inside the action range.
         let [n, _] = a_pi.dims();
@@ -448,6 +537,62 @@ mod tests {
         f[0] = 1.0;
         let a = agent.head().unwrap().apply(&f);
         assert!((a[1] - 0.3).abs() < 0.15, "steering {a:?}");
+    }
+
+    #[test]
+    fn policy_improvement_by_search_finds_the_best_action_of_a_bandit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let replay = bandit(&mut rng);
+        let cfg = AgentConfig {
+            batch: 64,
+            hidden: 32,
+            actor_lr: 3e-3,
+            bc_weight: 0.0,
+            search_step: 0.1,
+            policy_delay: 1,
+            ..AgentConfig::default()
+        };
+        let mut agent = Agent::new(cfg, &head(), 0, &Device::flex());
+        for i in 0..1200 {
+            agent.update(&replay, i >= 300, &mut rng).unwrap();
+        }
+        let mut f = vec![0.0; FEATURES];
+        f[0] = 1.0;
+        let a = agent.head().unwrap().apply(&f);
+        assert!((a[1] - 0.3).abs() < 0.1, "steering {a:?}");
+    }
+
+    /// A strong anchor holds the actor at the initial steering 0 on the bandit; decayed over
+    /// 200 updates it lets go, and the actor finds the best steering 0.3.
+    #[test]
+    fn a_decaying_anchor_lets_the_critic_decide() {
+        let run = |decay: u64| {
+            let mut rng = ChaCha8Rng::seed_from_u64(1);
+            let replay = bandit(&mut rng);
+            let cfg = AgentConfig {
+                batch: 64,
+                hidden: 32,
+                actor_lr: 3e-3,
+                bc_weight: 0.0,
+                anchor_weight: 50.0,
+                anchor_decay_updates: decay,
+                policy_delay: 1,
+                ..AgentConfig::default()
+            };
+            let mut agent = Agent::new(cfg, &head(), 0, &Device::flex());
+            for i in 0..600 {
+                agent.update(&replay, i >= 200, &mut rng).unwrap();
+            }
+            let mut f = vec![0.0; FEATURES];
+            f[0] = 1.0;
+            (agent.head().unwrap().apply(&f)[1], agent.anchor_weight())
+        };
+        let (held, w) = run(0);
+        assert!(held.abs() < 0.05, "steering {held}");
+        assert_eq!(w, 50.0);
+        let (free, w) = run(200);
+        assert!((free - 0.3).abs() < 0.15, "steering {free}");
+        assert_eq!(w, 0.0);
     }
 
     #[test]

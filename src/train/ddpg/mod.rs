@@ -84,6 +84,9 @@ pub struct DdpgOptions {
     pub train_backbone: bool,
     /// Where the actor and critics train (see [`TrainDevice`]).
     pub device: TrainDevice,
+    /// Share of the training episodes that start shortly before a place where an earlier
+    /// episode left the road (see [`Failures`]); 0: always a random place.
+    pub failure_resets: f32,
 }
 
 impl DdpgOptions {
@@ -111,6 +114,7 @@ impl DdpgOptions {
             ort_threads: 2,
             train_backbone: false,
             device: TrainDevice::Flex,
+            failure_resets: 0.0,
         }
     }
 }
@@ -221,6 +225,45 @@ fn clamp_action(a: [f32; 2], cfg: &AgentConfig) -> [f32; 2] {
         a[0].clamp(cfg.low[0], cfg.high[0]),
         a[1].clamp(cfg.low[1], cfg.high[1]),
     ]
+}
+
+/// Where earlier training episodes left the road, for resets before them (a curriculum
+/// that practises the hard places): a ring of the latest failures' progress along the track.
+struct Failures {
+    at: Vec<f32>,
+    next: usize,
+}
+
+impl Failures {
+    const KEEP: usize = 32;
+    /// How far before a failure an episode starts, metres along the track.
+    const BEFORE_M: std::ops::Range<f32> = 0.3..1.5;
+
+    fn new() -> Self {
+        Self {
+            at: Vec::new(),
+            next: 0,
+        }
+    }
+
+    fn push(&mut self, s: f32) {
+        if self.at.len() < Self::KEEP {
+            self.at.push(s);
+        } else {
+            self.at[self.next] = s;
+        }
+        self.next = (self.next + 1) % Self::KEEP;
+    }
+
+    /// A start (progress, metres) before a random remembered failure with probability
+    /// `share`; `None`: a random place. `length` wraps it onto the lap.
+    fn start(&self, share: f32, length: f32, rng: &mut impl rand::Rng) -> Option<f32> {
+        if self.at.is_empty() || share <= 0.0 || rng.random::<f32>() >= share {
+            return None;
+        }
+        let s = self.at[rng.random_range(0..self.at.len())];
+        Some((s - rng.random_range(Self::BEFORE_M)).rem_euclid(length.max(1e-3)))
+    }
 }
 
 /// What the replay buffer holds as a state.
@@ -407,6 +450,8 @@ pub fn train(
     let mut episode = 0usize;
     let mut done_early = evals.run(0, 0, &mut actor)?;
     let mut features = vec![0.0f32; FEATURES];
+    let mut failures = Failures::new();
+    let track_length = env.world().track.length();
 
     while !done_early
         && episode < opts.max_episodes
@@ -415,7 +460,12 @@ pub fn train(
         episode += 1;
         let t0 = Instant::now();
         let input = pre
-            .run(w, h, env.reset(None).map_err(sim_err)?)
+            .run(
+                w,
+                h,
+                env.reset(failures.start(opts.failure_resets, track_length, &mut rng))
+                    .map_err(sim_err)?,
+            )
             .map_err(|e| TrainError::Backend(e.to_string()))?;
         actor.backbone.features(input, &mut features)?;
         let mut current = state.of(input, &features);
@@ -459,6 +509,7 @@ pub fn train(
             if o.done || o.truncated {
                 if o.done {
                     stats.interventions = 1;
+                    failures.push(env.world().track.query(o.pose.x, o.pose.y).s);
                 }
                 for t in nstep.finish(&current, o.done, false) {
                     replay.push(t);
@@ -566,4 +617,33 @@ fn plot_curve(out: &Path, steps_per_test: f64) -> Result<Option<String>, TrainEr
         false,
         (800, 500),
     )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failure_resets_start_before_remembered_failures() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut f = Failures::new();
+        assert_eq!(f.start(1.0, 6.0, &mut rng), None, "nothing remembered yet");
+        f.push(0.5);
+        for _ in 0..200 {
+            let s = f.start(1.0, 6.0, &mut rng).unwrap();
+            // 0.3..1.5 m before 0.5, wrapped onto the 6 m lap: 5.0..6.0 or 0.0..0.2.
+            assert!((5.0..6.0).contains(&s) || (0.0..=0.2).contains(&s), "{s}");
+        }
+        assert_eq!(f.start(0.0, 6.0, &mut rng), None);
+        let share = (0..2000)
+            .filter(|_| f.start(0.25, 6.0, &mut rng).is_some())
+            .count();
+        assert!((400..600).contains(&share), "{share}");
+        // The ring keeps the latest KEEP failures.
+        for i in 0..100 {
+            f.push(i as f32);
+        }
+        assert_eq!(f.at.len(), Failures::KEEP);
+        assert!(!f.at.contains(&0.5));
+    }
 }
