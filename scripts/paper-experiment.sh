@@ -11,6 +11,12 @@
 # 9 h for three seeds on one track. --quick: one seed, the clockwise mat, a 6-minute
 # budget and a 10-epoch imitation policy: under 15 minutes, a first look.
 #
+# Environment overrides, for a reduced run: SEEDS, BUDGET_MIN, IL_EPOCHS, BUDGETS (the
+# report's budgets, a TOML list of minutes), EVAL_S, EVAL_EVERY, METHODS (a subset of
+# "il ilddpg ddpg"), TRACK_FILTER (a grep -E pattern on the track names), ILDDPG_FLAGS,
+# CFG (the sim config), BIN (a built jetpilot: no build, so a long run is not disturbed by
+# rebuilding the checkout it runs from).
+#
 # The demonstrations are recorded once, on the default track (the JetBot mat driven
 # counter-clockwise), and are the same for every method and track, so the question is
 # whether RL closes the generalisation gap. Writes OUT/manifest.toml, then
@@ -24,22 +30,22 @@ if [ "${1:-}" = "--quick" ]; then
   shift
 fi
 OUT=${1:-.cache/experiment}
-CFG=config/sim.toml
+CFG=${CFG:-config/sim.toml}
 if [ "$QUICK" = 1 ]; then
   SEEDS=${SEEDS:-1}
   BUDGET_MIN=${BUDGET_MIN:-6}
   IL_EPOCHS=${IL_EPOCHS:-10}
-  BUDGETS="[3, 6]"
-  EVAL_S=120         # a 600 s test takes about 3.3 wall minutes here: too long for a first look
-  EVAL_EVERY=10
+  BUDGETS=${BUDGETS:-[3, 6]}
+  EVAL_S=${EVAL_S:-120}         # a 600 s test takes about 3.3 wall minutes here: too long for a first look
+  EVAL_EVERY=${EVAL_EVERY:-10}
   TRACKS=("mat clockwise|--reverse")
 else
   SEEDS=${SEEDS:-1 2 3}
   BUDGET_MIN=${BUDGET_MIN:-30}
   IL_EPOCHS=${IL_EPOCHS:-50}
-  BUDGETS="[10, 20, 30]"
-  EVAL_S=600         # the paper's test
-  EVAL_EVERY=50
+  BUDGETS=${BUDGETS:-[10, 20, 30]}
+  EVAL_S=${EVAL_S:-600}         # the paper's test
+  EVAL_EVERY=${EVAL_EVERY:-50}
   TRACKS=(
     "mat clockwise|--reverse"
     "sharp corners clockwise|--track config/tracks/sharp_corners.toml --reverse"
@@ -49,17 +55,27 @@ fi
 # The levers that made IL + DDPG fix the imitation policy's failures (README).
 ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 4000 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
 
-scripts/install-build-deps.sh
+METHODS=${METHODS:-il ilddpg ddpg}
+TRACK_FILTER=${TRACK_FILTER:-.}
+runs() { [[ " $METHODS " == *" $1 "* ]]; }
+
 ORT_LIB=$(scripts/install-onnxruntime.sh)
 export ORT_DYLIB_PATH="$ORT_LIB"
-cargo build --release --features train --locked
-B=target/release/jetpilot
+if [ -n "${BIN:-}" ]; then
+  B=$BIN
+else
+  scripts/install-build-deps.sh
+  cargo build --release --features train --locked
+  B=target/release/jetpilot
+fi
 
 rm -rf "$OUT"
 mkdir -p "$OUT"
 M="$OUT/manifest.toml"
 {
   echo "# written by scripts/paper-experiment.sh at $(git rev-parse --short HEAD) on $(date -u +%F)"
+  echo "# SEEDS='$SEEDS' BUDGET_MIN=$BUDGET_MIN IL_EPOCHS=$IL_EPOCHS EVAL_S=$EVAL_S EVAL_EVERY=$EVAL_EVERY METHODS='$METHODS' TRACK_FILTER='$TRACK_FILTER'"
+  echo "# ILDDPG_FLAGS='$ILDDPG_FLAGS'"
   echo "budgets_min = $BUDGETS"
   echo "test_seconds = $EVAL_S"
 } > "$M"
@@ -71,33 +87,44 @@ $B sim --config "$CFG" --expert --seconds 60 --swerve-every 3 --record-every 3 \
   --record-frames 331 --record "$OUT/demos" > "$OUT/demos.log"
 
 for seed in $SEEDS; do
-  t0=$(now)
-  $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
-    --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
-  il_s=$(since "$t0")
+  il_s=0
+  if runs il || runs ilddpg; then
+    t0=$(now)
+    $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
+      --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
+    il_s=$(since "$t0")
+  fi
   left_min=$(awk -v m="$BUDGET_MIN" -v s="$il_s" 'BEGIN { printf "%.2f", m - s / 60 }')
   echo "seed $seed: imitation learning took $il_s s; IL + DDPG gets $left_min more minutes"
   for entry in "${TRACKS[@]}"; do
     name=${entry%%|*}
+    grep -qE "$TRACK_FILTER" <<< "$name" || continue
     read -r -a road <<< "${entry#*|}"
     slug=$(echo "$name" | tr -c 'a-zA-Z0-9\n' '_')
-    $B eval --config "$CFG" --model "$OUT/il_$seed/best.onnx" "${road[@]}" --seconds "$EVAL_S" \
-      --json "$OUT/il_${seed}_$slug.json" > /dev/null
-    printf '\n[[run]]\nmethod = "IL"\nseed = %s\ntrack = "%s"\noffset_s = %s\neval_json = "%s"\n' \
-      "$seed" "$name" "$il_s" "il_${seed}_$slug.json" >> "$M"
+    if runs il; then
+      $B eval --config "$CFG" --model "$OUT/il_$seed/best.onnx" "${road[@]}" --seconds "$EVAL_S" \
+        --json "$OUT/il_${seed}_$slug.json" > /dev/null
+      printf '\n[[run]]\nmethod = "IL"\nseed = %s\ntrack = "%s"\noffset_s = %s\neval_json = "%s"\n' \
+        "$seed" "$name" "$il_s" "il_${seed}_$slug.json" >> "$M"
+    fi
 
-    # shellcheck disable=SC2086
-    $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --init "$OUT/il_$seed/best.onnx" \
-      --demos "$OUT/demos" --minutes "$left_min" $ILDDPG_FLAGS \
-      --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
-      --out "$OUT/ilddpg_${seed}_$slug" > "$OUT/ilddpg_${seed}_$slug.log" 2>&1
-    printf '\n[[run]]\nmethod = "IL + DDPG"\nseed = %s\ntrack = "%s"\noffset_s = %s\nevals_csv = "%s"\n' \
-      "$seed" "$name" "$il_s" "ilddpg_${seed}_$slug/ddpg_eval.csv" >> "$M"
+    if runs ilddpg; then
+      # shellcheck disable=SC2086
+      $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --init "$OUT/il_$seed/best.onnx" \
+        --demos "$OUT/demos" --minutes "$left_min" $ILDDPG_FLAGS \
+        --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
+        --out "$OUT/ilddpg_${seed}_$slug" > "$OUT/ilddpg_${seed}_$slug.log" 2>&1
+      printf '\n[[run]]\nmethod = "IL + DDPG"\nseed = %s\ntrack = "%s"\noffset_s = %s\nevals_csv = "%s"\n' \
+        "$seed" "$name" "$il_s" "ilddpg_${seed}_$slug/ddpg_eval.csv" >> "$M"
+    fi
 
-    $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --minutes "$BUDGET_MIN" \
-      --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" --out "$OUT/ddpg_${seed}_$slug" > "$OUT/ddpg_${seed}_$slug.log" 2>&1
-    printf '\n[[run]]\nmethod = "DDPG"\nseed = %s\ntrack = "%s"\noffset_s = 0\nevals_csv = "%s"\n' \
-      "$seed" "$name" "ddpg_${seed}_$slug/ddpg_eval.csv" >> "$M"
+    if runs ddpg; then
+      $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --minutes "$BUDGET_MIN" \
+        --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
+        --out "$OUT/ddpg_${seed}_$slug" > "$OUT/ddpg_${seed}_$slug.log" 2>&1
+      printf '\n[[run]]\nmethod = "DDPG"\nseed = %s\ntrack = "%s"\noffset_s = 0\nevals_csv = "%s"\n' \
+        "$seed" "$name" "ddpg_${seed}_$slug/ddpg_eval.csv" >> "$M"
+    fi
     $B train report --manifest "$M" > /dev/null
   done
 done
