@@ -221,6 +221,94 @@ fn eval_reports_the_protocol_numbers_as_json() {
 }
 
 #[test]
+fn jetbot_camera_replays_and_draws_sim_beside_real_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let real = dir.path().join("real");
+    std::fs::create_dir(&real).unwrap();
+    for (name, rgb) in [
+        ("xy_010_100_a.png", [230u8, 150, 200]),
+        ("xy_200_100_c.png", [90, 90, 90]),
+    ] {
+        image::RgbImage::from_pixel(224, 224, image::Rgb(rgb))
+            .save(real.join(name))
+            .unwrap();
+    }
+    std::fs::write(real.join("xy_100_100_b.jpg"), b"").unwrap();
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(&cfg, "[sim.camera]\nwidth = 48\nheight = 48\n").unwrap();
+    let png = dir.path().join("png");
+    let jp = || Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+    let out = jp()
+        .args([
+            "-q",
+            "sim",
+            "--expert",
+            "--seconds",
+            "2",
+            "--camera",
+            "jetbot",
+            "--config",
+        ])
+        .arg(&cfg)
+        .arg("--png")
+        .arg(&png)
+        .arg("--real")
+        .arg(&real)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("xy_100_100_b.jpg") && stderr.contains("empty"),
+        "{stderr}"
+    );
+    let sheet = image::open(png.join("sim_vs_real.png")).unwrap().to_rgb8();
+    // Eight 224 px tiles with 4 px gaps; sim on top, the two readable real frames below.
+    assert_eq!(sheet.dimensions(), (8 * 228 + 4, 2 * 228 + 4));
+    assert_eq!(
+        sheet.get_pixel(4 + 100, 228 + 4 + 100),
+        &image::Rgb([230, 150, 200])
+    );
+    assert_eq!(
+        sheet.get_pixel(228 + 4 + 100, 228 + 4 + 100),
+        &image::Rgb([90, 90, 90])
+    );
+
+    // Replayed-frame synthesis through the fisheye: the expert keeps the road.
+    let replay = dir.path().join("replay.toml");
+    std::fs::write(
+        &replay,
+        "[sim]\nframes = \"replay\"\n[sim.camera]\nwidth = 48\nheight = 48\n",
+    )
+    .unwrap();
+    let json = dir.path().join("eval.json");
+    let out = jp()
+        .args([
+            "-q",
+            "eval",
+            "--expert",
+            "--seconds",
+            "10",
+            "--camera",
+            "jetbot",
+            "--config",
+        ])
+        .arg(&replay)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["interventions"], 0, "{v}");
+}
+
+#[test]
 fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     let dir = tempfile::tempdir().unwrap();
     let model = common::write_model(dir.path(), 48, 4);

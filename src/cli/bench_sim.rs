@@ -1,6 +1,7 @@
 //! `jetpilot bench --sim`: the simulator's frame costs on one thread (it runs beside the
 //! model, which gets the other core): rendering the mat and replayed-frame synthesis at
-//! 224x224 and 96x96, and the physics + scoring step.
+//! 224x224 and 96x96, through the config's default pinhole and through JetBot's fisheye
+//! (`CameraModel::jetbot`).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -8,6 +9,7 @@ use std::time::Instant;
 use jetpilot::config::Config;
 use jetpilot::drive::stats::summarise;
 use jetpilot::sim::Pose2;
+use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::render::{MatTexture, Renderer};
 use jetpilot::sim::setup::{FrameMode, expert_lap_recording};
 use jetpilot::sim::synth::Synthesizer;
@@ -32,10 +34,19 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
     let track = Track::jetbot_mat();
     println!("jetpilot bench --sim: one thread, {iterations} iterations, milliseconds");
     println!("  {:<44} {:>8} {:>8}", "", "median", "p90");
-    for size in [224u32, 96] {
+    let cases = [
+        ("pinhole", 224u32),
+        ("pinhole", 96),
+        ("fisheye", 224),
+        ("fisheye", 96),
+    ];
+    for (lens, size) in cases {
         let mut cfg = Config::default();
         cfg.sim.camera.width = size;
         cfg.sim.camera.height = size;
+        if lens == "fisheye" {
+            cfg.sim.camera = CameraModel::jetbot(size, size);
+        }
         cfg.sim.frames = FrameMode::Replay;
         let texture = MatTexture::new(
             &track.paint(),
@@ -64,7 +75,7 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
         });
         println!(
             "  {:<44} {:>8.3} {:>8.3}",
-            format!("render {size}x{size}"),
+            format!("render {lens} {size}x{size}"),
             r50,
             r90
         );
@@ -73,7 +84,7 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
         });
         println!(
             "  {:<44} {:>8.3} {:>8.3}",
-            format!("replayed-frame synthesis {size}x{size} ({n_rec} rec.)"),
+            format!("replayed-frame synthesis {lens} {size}x{size} ({n_rec} rec.)"),
             s50,
             s90
         );

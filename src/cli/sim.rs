@@ -8,7 +8,9 @@ use jetpilot::config::Config;
 use jetpilot::drive::DriveParams;
 use jetpilot::drive::stages::FrameProcessor;
 use jetpilot::policy::Policy;
+use jetpilot::score::contact;
 use jetpilot::sim::Pose2;
+use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::closed_loop::{self, LoopTimes, Pilot};
 use jetpilot::sim::demos::DemoRecorder;
 use jetpilot::sim::render::{top_down, write_png};
@@ -18,22 +20,38 @@ use jetpilot::sim::setup::{self, SimRig};
 /// Which road to drive, over the config's `[sim]` (shared by `sim`, `eval` and
 /// `train ddpg`).
 #[derive(Debug, Clone, clap::Args)]
-pub struct TrackArgs {
+pub struct WorldArgs {
     /// Track file (see config/tracks/), instead of the config's `sim.track`.
     #[arg(long, value_name = "FILE")]
     pub track: Option<PathBuf>,
     /// Drive the track the other way round (the JetBot mat: clockwise), in the right lane.
     #[arg(long)]
     pub reverse: bool,
+    /// Camera instead of the config's `[sim.camera]`: `jetbot` is JetBot's 160-degree
+    /// IMX219 fisheye at the mount fitted to real JetBot frames (README, "JetBot's camera,
+    /// fitted so far"); the config's image size is kept.
+    #[arg(long, value_enum, value_name = "NAME")]
+    pub camera: Option<CameraPreset>,
 }
 
-impl TrackArgs {
+/// Cameras `--camera` can name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CameraPreset {
+    /// JetBot's camera: `CameraModel::jetbot`.
+    Jetbot,
+}
+
+impl WorldArgs {
     pub fn apply(&self, cfg: &mut Config) {
         if let Some(t) = &self.track {
             cfg.sim.track = Some(t.clone());
         }
         if self.reverse {
             cfg.sim.reverse = true;
+        }
+        if let Some(CameraPreset::Jetbot) = self.camera {
+            let c = &mut cfg.sim.camera;
+            *c = CameraModel::jetbot(c.width, c.height);
         }
     }
 }
@@ -82,8 +100,13 @@ pub struct SimArgs {
     /// frames) and `trace.png` (the mat from above with the driven path and interventions).
     #[arg(long, value_name = "DIR")]
     png: Option<PathBuf>,
+    /// With --png: also write `sim_vs_real.png`, the camera frames above real frames picked
+    /// evenly from this folder (JPEG/PNG files in it or one level down, e.g.
+    /// ../shared/realdata/jetbot_xy_mat), to compare sim and real at a glance.
+    #[arg(long, value_name = "FOLDER", requires = "png")]
+    real: Option<PathBuf>,
     #[command(flatten)]
-    road: TrackArgs,
+    road: WorldArgs,
 }
 
 #[derive(Debug, clap::Args)]
@@ -107,7 +130,7 @@ pub struct EvalArgs {
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
     #[command(flatten)]
-    road: TrackArgs,
+    road: WorldArgs,
 }
 
 /// The paper's numbers for one run.
@@ -347,6 +370,25 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         }
         write_trace(&rig, &driven.trace, &dir.join("trace.png"))?;
         println!("wrote {0}/frames.png and {0}/trace.png", dir.display());
+        if let Some(folder) = &args.real {
+            let real = contact::pick_real_frames(folder, driven.strip.len().max(1))?;
+            for s in &real.skipped {
+                eprintln!("warning: skipped {s}");
+            }
+            let sim: Vec<&[u8]> = driven.strip.iter().map(|f| f.as_slice()).collect();
+            let sheet = contact::contact_sheet(&sim, w, h, &real.frames, 224);
+            let path = dir.join("sim_vs_real.png");
+            sheet
+                .save(&path)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+            println!(
+                "wrote {}: {} sim frames above {} real frames from {}",
+                path.display(),
+                sim.len(),
+                real.frames.len(),
+                folder.display()
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -119,7 +119,7 @@ pub struct DdpgArgs {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     replay_capacity: Option<u64>,
     #[command(flatten)]
-    road: super::sim::TrackArgs,
+    road: super::sim::WorldArgs,
     #[command(flatten)]
     target: super::train::DeviceArg,
 }

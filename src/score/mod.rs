@@ -2,7 +2,8 @@
 //! what people labelled, beside what always answering the average label would score.
 //!
 //! This module owns the pure arithmetic; `cli/score.rs` reads the frames and runs the
-//! model, [`sheet`] draws the picture.
+//! model, [`sheet`] draws the picture. [`contact`] draws `sim --png --real`'s sheet: sim
+//! views above real frames.
 //!
 //! - `xy` heads (JetBot's target point): the distance between the predicted and the
 //!   labelled point in pixels of JetBot's 224x224 frame, `112 * |p - l|` for labels in
@@ -12,6 +13,7 @@
 //! The mean-label baseline predicts one constant, the mean label of the frames it is given
 //! (the training part of a split by time, so the baseline never sees the test labels).
 
+pub mod contact;
 pub mod sheet;
 
 use std::fmt;

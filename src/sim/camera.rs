@@ -89,7 +89,31 @@ struct Extrinsics {
     rot: Matrix3<f64>,
 }
 
+/// Downward tilt of JetBot's camera, degrees, fitted to the real frames of
+/// `../shared/realdata/jetbot_xy_mat/low_tilt` (README, "JetBot's camera, fitted so far"):
+/// the far wall's foot, a few metres away, lies 25-35 px below the top of the 224x224
+/// frame, so the horizon is about 27 px down, `112 - 27 = 85` px above the centre, and
+/// `85 / f` with `f = 1.98 px/degree` for a 160 degree diagonal is 43 degrees.
+pub const JETBOT_TILT_DEG: f32 = 43.0;
+
 impl CameraModel {
+    /// JetBot's camera: the IMX219 with its 160 degree (diagonal) fisheye, equidistant
+    /// (`k = 0`), 10 cm up and 5 cm ahead of the axle, tilted down [`JETBOT_TILT_DEG`],
+    /// producing `width x height` frames.
+    pub fn jetbot(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            lens: LensKind::Fisheye,
+            fisheye_fov_deg: 160.0,
+            fisheye_k: [0.0; 4],
+            height_m: 0.10,
+            tilt_deg: JETBOT_TILT_DEG,
+            forward_m: 0.05,
+            ..Self::default()
+        }
+    }
+
     /// Checks that the model describes a usable camera.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |what: String| Err(SimError::Invalid(format!("camera: {what}")));
@@ -270,12 +294,25 @@ impl CameraModel {
         self.pixel_to_ground(&Pose2::default(), u, v)
     }
 
-    fn homography64(&self, pose: &Pose2) -> Matrix3<f64> {
+    fn ground_to_ray64(&self, pose: &Pose2) -> Matrix3<f64> {
         let e = self.extrinsics(pose);
         let c = e.centre;
         // [e1 | e2 | -C]: ground (x, y, 1) -> world point minus the optical centre.
         let lift = Matrix3::new(1.0, 0.0, -c.x, 0.0, 1.0, -c.y, 0.0, 0.0, -c.z);
-        self.intrinsics64() * e.rot.transpose() * lift
+        e.rot.transpose() * lift
+    }
+
+    fn homography64(&self, pose: &Pose2) -> Matrix3<f64> {
+        self.intrinsics64() * self.ground_to_ray64(pose)
+    }
+
+    /// `R^T [e1 | e2 | -C]` for a robot at `pose`: maps the homogeneous ground point
+    /// `(x, y, 1)` (world metres) to the camera-frame vector from the optical centre to that
+    /// point (metres, exact, not up to scale). Any lens projects it to the pixel, so this
+    /// is what fisheye synthesis re-projects through; for a pinhole,
+    /// [`Self::ground_homography`] is `K` times it.
+    pub fn ground_to_ray(&self, pose: &Pose2) -> Matrix3<f32> {
+        self.ground_to_ray64(pose).cast()
     }
 
     /// Ground-plane homography `H = K R^T [e1 | e2 | -C]` for a robot at `pose` (a pinhole's
@@ -440,6 +477,31 @@ mod tests {
         assert!(cam.ground_to_pixel(&pose, 0.5, 0.2).is_none());
         // Too far.
         assert!(cam.pixel_to_ground(&pose, cu, hv + 0.01).is_none());
+    }
+
+    #[test]
+    fn the_jetbot_camera_puts_the_horizon_27_px_down_and_sees_80_degrees_at_the_corners() {
+        let cam = CameraModel::jetbot(224, 224);
+        cam.validate().unwrap();
+        // f = hypot(224, 224) / 2 / 80 degrees = 1.9799 px/degree; 112 - 43 f = 26.9.
+        assert!(
+            (cam.horizon_v() - 26.86).abs() < 0.05,
+            "{}",
+            cam.horizon_v()
+        );
+        let corner = cam.lens().off_axis_deg(0.0, 0.0).unwrap();
+        assert!((corner - 80.0).abs() < 1e-6, "{corner}");
+        // Half way out along the row through the centre: 56 px / f = 28.3 degrees.
+        let mid = cam.lens().off_axis_deg(168.0, 112.0).unwrap();
+        assert!((mid - 56.0 / 1.979_899).abs() < 1e-3, "{mid}");
+        // The bottom centre sees the ground 43 + 56.6 = 99.6 degrees below the horizontal:
+        // behind the lens, under the camera, 5 cm ahead of the axle minus 1.7 cm.
+        let (f, l) = cam.pixel_to_robot_ground(112.0, 224.0).unwrap();
+        let expect = 0.05 - 0.10 * (99.57f32 - 90.0).to_radians().tan();
+        assert!(
+            (f - expect).abs() < 1e-3 && l.abs() < 1e-4,
+            "{f} {l} vs {expect}"
+        );
     }
 
     #[test]

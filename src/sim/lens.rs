@@ -16,8 +16,8 @@
 //! beyond, which a pinhole cannot.
 //!
 //! `CameraModel` (`[sim.camera] lens`) projects through it, and so the renderer's per-pixel
-//! tables do. Replayed-frame synthesis still needs the pinhole: it re-projects through the
-//! ground homography, which a fisheye does not have.
+//! tables and replayed-frame synthesis do (`synth` has a float32 copy of `project` for its
+//! per-pixel loop).
 
 use nalgebra::Vector3;
 
