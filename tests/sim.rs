@@ -309,6 +309,49 @@ fn jetbot_camera_replays_and_draws_sim_beside_real_frames() {
 }
 
 #[test]
+fn randomised_recordings_change_the_frames_and_repeat_for_a_seed() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(&cfg, "[sim.camera]\nwidth = 48\nheight = 48\n").unwrap();
+    let record = |name: &str, randomise: bool| {
+        let tub = dir.path().join(name);
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+        cmd.args(["-q", "sim", "--expert", "--seconds", "1", "--config"])
+            .arg(&cfg)
+            .arg("--record")
+            .arg(&tub);
+        if randomise {
+            cmd.arg("--randomise");
+        }
+        let out = cmd.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let mut images: Vec<_> = std::fs::read_dir(tub.join("images"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        images.sort();
+        assert_eq!(images.len(), 30);
+        images
+            .iter()
+            .map(|p| std::fs::read(p).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let plain = record("plain", false);
+    let a = record("a", true);
+    let b = record("b", true);
+    assert_eq!(a, b, "the same seed must give the same randomised frames");
+    let differing = plain.iter().zip(&a).filter(|(p, r)| p != r).count();
+    assert_eq!(
+        differing, 30,
+        "every randomised frame differs from the plain one"
+    );
+}
+
+#[test]
 fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     let dir = tempfile::tempdir().unwrap();
     let model = common::write_model(dir.path(), 48, 4);

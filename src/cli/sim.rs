@@ -32,6 +32,11 @@ pub struct WorldArgs {
     /// fitted so far"); the config's image size is kept.
     #[arg(long, value_enum, value_name = "NAME")]
     pub camera: Option<CameraPreset>,
+    /// Randomise the camera's look (`[sim.appearance]`: white balance with JetBot's pink
+    /// cast, exposure, gamma, vignetting, noise, blur), seeded by `sim.seed`: for training
+    /// data (`sim --record`) and `train ddpg`. Off by default, so `eval` stays as it was.
+    #[arg(long)]
+    pub randomise: bool,
 }
 
 /// Cameras `--camera` can name.
@@ -48,6 +53,9 @@ impl WorldArgs {
         }
         if self.reverse {
             cfg.sim.reverse = true;
+        }
+        if self.randomise {
+            cfg.sim.appearance.enabled = true;
         }
         if let Some(CameraPreset::Jetbot) = self.camera {
             let c = &mut cfg.sim.camera;

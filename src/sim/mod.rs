@@ -16,6 +16,7 @@
 //! 0 along +x, counter-clockwise positive. Lateral offsets are positive to the left of the
 //! direction of travel.
 
+pub mod appearance;
 pub mod camera;
 pub mod closed_loop;
 pub mod demos;

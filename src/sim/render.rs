@@ -437,7 +437,7 @@ pub fn apply_effects<R: Rng + ?Sized>(
 }
 
 /// Separable [1 2 1] / 4 blur in place (edges replicated), with scalar carries only.
-fn blur_121(w: usize, h: usize, rgb: &mut [u8]) {
+pub(crate) fn blur_121(w: usize, h: usize, rgb: &mut [u8]) {
     // Horizontal.
     for row in rgb.chunks_exact_mut(w * 3) {
         for c in 0..3 {

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
+use super::appearance::Appearance;
 use super::camera::CameraModel;
 use super::closed_loop::{self, LoopSettings, Pilot};
 use super::expert::ExpertParams;
@@ -61,6 +62,8 @@ pub struct SimConfig {
     pub expert: ExpertParams,
     /// No progress along the track for this long is an intervention too.
     pub stall: super::world::StallRule,
+    /// Camera-side appearance randomisation (off by default).
+    pub appearance: super::appearance::AppearanceConfig,
 }
 
 impl Default for SimConfig {
@@ -81,6 +84,7 @@ impl Default for SimConfig {
             reward: RewardParams::default(),
             expert: ExpertParams::default(),
             stall: super::world::StallRule::default(),
+            appearance: super::appearance::AppearanceConfig::default(),
         }
     }
 }
@@ -167,6 +171,10 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
         cfg.sim.seed,
     );
     world.set_stall_rule(cfg.sim.stall);
+    if cfg.sim.appearance.enabled {
+        cfg.sim.appearance.validate()?;
+        world.set_appearance(Some(Appearance::new(cfg.sim.appearance, cfg.sim.seed)));
+    }
     Ok(SimRig {
         world,
         motors,

@@ -9,6 +9,7 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::appearance::Appearance;
 use super::reward::{RewardParams, is_reward, reward};
 use super::robot::{Robot, RobotParams};
 use super::synth::Synthesizer;
@@ -70,6 +71,8 @@ pub struct World {
     stall: StallRule,
     /// Simulated time and progress at the start of the current stall window.
     stall_window: (f64, f64),
+    /// Randomised camera looks, when on (`[sim.appearance]`).
+    appearance: Option<Appearance>,
 }
 
 /// A robot that makes no progress along the track (circling, stuck, or driving the wrong
@@ -122,6 +125,7 @@ impl World {
             view_valid: true,
             stall: StallRule::default(),
             stall_window: (0.0, 0.0),
+            appearance: None,
         };
         w.reset_at(0.0);
         w
@@ -133,6 +137,14 @@ impl World {
         self.robot.reset(pose);
         self.last_s = self.track.query(pose.x, pose.y).s;
         self.view_valid = true;
+        if let Some(a) = self.appearance.as_mut() {
+            a.redraw();
+        }
+    }
+
+    /// Randomises the camera's look from now on (`None`: plain frames).
+    pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
+        self.appearance = appearance;
     }
 
     pub fn set_stall_rule(&mut self, rule: StallRule) {
@@ -154,6 +166,13 @@ impl World {
             FrameMaker::Replay(s) => {
                 self.view_valid = s.synthesize(&pose, out).valid;
             }
+        }
+        if let Some(a) = self.appearance.as_mut() {
+            let c = match &self.frames {
+                FrameMaker::Render(r) => r.camera(),
+                FrameMaker::Replay(s) => s.camera(),
+            };
+            a.apply(c.width, c.height, out);
         }
     }
 
