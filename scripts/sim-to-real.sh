@@ -4,10 +4,15 @@
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)
 #
-# Two policies, the same recipe (600 expert frames over two laps, 96x96 input, EPOCHS
-# epochs, default 20), differing only in what the simulator showed them:
+# Three policies, the same recipe (600 expert frames, 96x96 input, EPOCHS epochs, default
+# 20), differing only in what the simulator showed them:
 #   plain:      the default pinhole camera, plain appearance (the starting point);
-#   randomised: --camera jetbot (the fitted fisheye) and --randomise (camera looks).
+#   randomised: --camera jetbot (the fitted fisheye) and --randomise (camera looks, road
+#               paints, floors, backdrops) on the default mat;
+#   matched:    as randomised, on config/tracks/narrow_print.toml (a road as narrow as the
+#               real mat's looks), with recovery swerves every 2 s, and the expert's target
+#               0.135 m ahead instead of 0.22 m, so the labels' mean matches the real
+#               labels' (about (105, 125) px; 0.22 m gives (93, 87)).
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
 # time; the mean-label baseline from the earlier 80 %). Writes OUT/<name>/score/.
 set -euo pipefail
@@ -40,7 +45,8 @@ run() {
   local d="$OUT/$name"
   rm -rf "$d"
   mkdir -p "$d"
-  "$B" -q sim --config "$CFG" --expert --seconds 60 --record-every 3 --record-frames 600 \
+  local cfg=${SIM_CFG:-$CFG}
+  "$B" -q sim --config "$cfg" --expert --seconds 80 --record-every 3 --record-frames 600 \
     "$@" --record "$d/demos" --record-xy "$d/xy" --png "$d/look" --real "$REAL" > "$d/sim.log"
   "$B" train il --config "$CFG" --input-size 96 --head xy --epochs "$EPOCHS" --seed 1 \
     --data "$d/xy" --out "$d/il" > "$d/il.log" 2>&1
@@ -50,5 +56,9 @@ run() {
 
 echo "== plain: pinhole camera, plain appearance"
 run plain
-echo "== randomised: JetBot's fisheye, randomised camera looks"
+echo "== randomised: JetBot's fisheye, randomised looks and scenes"
 run randomised --camera jetbot --randomise
+echo "== matched: as randomised, narrow road, recovery swerves, targets as near as people click"
+sed 's/^lookahead_m = .*/lookahead_m = 0.135/' "$CFG" > "$OUT/matched.toml"
+SIM_CFG="$OUT/matched.toml" run matched --camera jetbot --randomise \
+  --track config/tracks/narrow_print.toml --swerve-every 2

@@ -352,6 +352,65 @@ fn randomised_recordings_change_the_frames_and_repeat_for_a_seed() {
 }
 
 #[test]
+fn scene_randomisation_repaints_the_road_at_each_episode_and_repeats_for_a_seed() {
+    // Looks off (no tint, noise, light), scenes on: what changes is the paint and the room.
+    let cfg = small_config(
+        "[sim.appearance]\nenabled = true\npink_probability = 0.0\ntint = 0.0\n\
+         exposure = [1.0, 1.0]\ngamma = [1.0, 1.0]\nvignette = [0.0, 0.0]\n\
+         noise_std = [0.0, 0.0]\nblur_probability = 0.0\nlight_gradient = [0.0, 0.0]\n\
+         glare_probability = 0.0\nredraw_every_frames = 0\nclutter = [3, 3]",
+    );
+    let episodes = |cfg: &Config| {
+        let mut rig = setup::build(cfg).unwrap();
+        let mut frames = Vec::new();
+        let mut styles = Vec::new();
+        for k in 0..12 {
+            rig.world.reset_at(0.3 * k as f32);
+            let mut rgb = vec![0u8; 48 * 48 * 3];
+            rig.world.observe(&mut rgb);
+            frames.push(rgb);
+            styles.push(
+                rig.world
+                    .appearance()
+                    .and_then(|a| a.scene())
+                    .map(|s| s.style),
+            );
+        }
+        (frames, styles)
+    };
+    let (a, styles) = episodes(&cfg);
+    let (b, _) = episodes(&cfg);
+    assert_eq!(a, b, "the same seed gives the same scenes");
+    let mut plain_cfg = cfg.clone();
+    plain_cfg.sim.appearance.enabled = false;
+    let (plain, _) = episodes(&plain_cfg);
+    for (k, (r, p)) in a.iter().zip(&plain).enumerate() {
+        assert_ne!(
+            r, p,
+            "episode {k}: a repainted scene differs from the plain render"
+        );
+    }
+    use jetpilot::sim::scene::RoadStyle;
+    for style in [RoadStyle::Sim, RoadStyle::Print, RoadStyle::Tape] {
+        assert!(
+            styles.contains(&Some(style)),
+            "12 episodes show every style: {styles:?}"
+        );
+    }
+    // A printed-mat episode: the road straight ahead at the bottom centre is near black.
+    let k = styles
+        .iter()
+        .position(|s| *s == Some(RoadStyle::Print))
+        .unwrap();
+    let (u, v) = (20, 46);
+    let px = &a[k][(v * 48 + u) * 3..][..3];
+    assert!(
+        px.iter().all(|&c| c < 80),
+        "printed road at ({u}, {v}): {px:?}"
+    );
+}
+
+#[test]
 fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     let dir = tempfile::tempdir().unwrap();
     let model = common::write_model(dir.path(), 48, 4);

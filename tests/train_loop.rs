@@ -450,3 +450,37 @@ fn ddpg_removes_the_interventions_of_a_biased_policy() {
     assert!(first.interventions >= 3, "{first:?}");
     assert_eq!(best.outcome.interventions, 0, "{:?}", report.evals);
 }
+
+#[test]
+fn train_plot_draws_one_line_per_series_and_names_a_missing_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("points.csv");
+    std::fs::write(
+        &csv,
+        "frames,start,mean_px\n25,sim,30.5\n25,random,44\n50,random,40\n50,sim,26\n",
+    )
+    .unwrap();
+    let png = dir.path().join("plot.png");
+    let run = |x: &str| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+        cmd.args([
+            "train", "plot", "--x", x, "--y", "mean_px", "--series", "start",
+        ])
+        .arg("--csv")
+        .arg(&csv)
+        .arg("--out")
+        .arg(&png);
+        cmd.output().expect("run jetpilot")
+    };
+    let stdout = ok(&run("frames"));
+    assert!(stdout.contains("2 line(s), 4 point(s)"), "{stdout}");
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (900, 560));
+    let out = run("frame");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no column `frame`") && err.contains("frames, start, mean_px"),
+        "{err}"
+    );
+}

@@ -17,6 +17,8 @@ mod train;
 mod train_bench;
 #[cfg(feature = "train")]
 mod train_ddpg;
+#[cfg(feature = "train")]
+mod train_plot;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

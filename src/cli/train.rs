@@ -29,6 +29,9 @@ pub enum TrainCommand {
     /// a Markdown table per track (mean ± sd over seeds after each wall budget) and
     /// experiment_<track>.png (rewards and autonomy against wall time, seed bands).
     Report(ReportArgs),
+    /// Draw a line chart from a CSV with a header row: --y against --x, one line per value
+    /// of --series (scripts/sim-to-real.sh plots its fine-tuning study with it).
+    Plot(super::train_plot::PlotArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -146,6 +149,7 @@ pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
         TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
         TrainCommand::Bench(args) => super::train_bench::main(args),
         TrainCommand::Report(args) => report_main(args),
+        TrainCommand::Plot(args) => super::train_plot::main(args),
     }
 }
 

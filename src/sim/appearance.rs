@@ -16,8 +16,12 @@
 //! `tint` per channel. Then an optional 3x3 blur (`blur_probability`, a little defocus or
 //! motion). Off by default: evaluation stays deterministic and unchanged.
 //!
-//! Not here yet (the sim-to-real issue's other half): floors, road paints and widths,
-//! light gradients and glare, and what stands beyond the mat.
+//! Light on top of that: a linear brightness gradient across the frame (`light_gradient`,
+//! in a random direction) and, with `glare_probability`, a bright Gaussian patch.
+//!
+//! With `scene = true` a [`Scene`] is drawn with each look as well (road paint, mat and
+//! floor colours, the room beyond the mat: `sim::scene`); the world repaints its mat when
+//! [`Appearance::generation`] changes.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -25,6 +29,7 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
 use super::SimError;
+use super::scene::Scene;
 
 /// `[sim.appearance]`. Ranges are `[low, high]`, drawn uniformly.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
@@ -48,6 +53,23 @@ pub struct AppearanceConfig {
     pub blur_probability: f32,
     /// A new look every this many frames as well as at every reset (0: at resets only).
     pub redraw_every_frames: u32,
+    /// Strength of a linear brightness gradient across the frame (0.5: from 0.5x to 1.5x
+    /// between opposite edges), in a random direction.
+    pub light_gradient: [f32; 2],
+    /// Probability of a glare patch.
+    pub glare_probability: f32,
+    /// Repaint the scene too (`sim::scene`): road style, colours, line widths, backdrop.
+    pub scene: bool,
+    /// Probability of JetBot's printed mat (black road, white lines, white mat).
+    pub print_probability: f32,
+    /// Probability of tape lines on a floor (else the simulator's own mat, jittered).
+    pub tape_probability: f32,
+    /// Line widths times a factor drawn from this range.
+    pub line_width_scale: [f32; 2],
+    /// Each paint colour's channels within `1 +- colour_jitter`.
+    pub colour_jitter: f32,
+    /// Number of blocks (furniture, people) beyond the mat, `[least, most]`.
+    pub clutter: [u32; 2],
 }
 
 impl Default for AppearanceConfig {
@@ -62,6 +84,14 @@ impl Default for AppearanceConfig {
             noise_std: [0.0, 6.0],
             blur_probability: 0.3,
             redraw_every_frames: 150,
+            light_gradient: [0.0, 0.5],
+            glare_probability: 0.3,
+            scene: true,
+            print_probability: 0.4,
+            tape_probability: 0.3,
+            line_width_scale: [0.6, 1.6],
+            colour_jitter: 0.15,
+            clutter: [0, 6],
         }
     }
 }
@@ -75,6 +105,8 @@ impl AppearanceConfig {
             ("gamma", self.gamma, 0.1, 5.0),
             ("vignette", self.vignette, 0.0, 1.0),
             ("noise_std", self.noise_std, 0.0, 64.0),
+            ("light_gradient", self.light_gradient, 0.0, 1.0),
+            ("line_width_scale", self.line_width_scale, 0.1, 5.0),
         ];
         for (name, [lo, hi], min, max) in ranges {
             if !(lo.is_finite() && hi.is_finite() && min <= lo && lo <= hi && hi <= max) {
@@ -86,6 +118,9 @@ impl AppearanceConfig {
         for (name, p) in [
             ("pink_probability", self.pink_probability),
             ("blur_probability", self.blur_probability),
+            ("glare_probability", self.glare_probability),
+            ("print_probability", self.print_probability),
+            ("tape_probability", self.tape_probability),
         ] {
             if !(0.0..=1.0).contains(&p) {
                 return bad(format!("{name} = {p} must be in 0..=1"));
@@ -93,6 +128,24 @@ impl AppearanceConfig {
         }
         if !(0.0..=0.9).contains(&self.tint) {
             return bad(format!("tint = {} must be in 0..=0.9", self.tint));
+        }
+        if self.print_probability + self.tape_probability > 1.0 {
+            return bad(format!(
+                "print_probability + tape_probability = {} must be at most 1",
+                self.print_probability + self.tape_probability
+            ));
+        }
+        if !(0.0..=0.5).contains(&self.colour_jitter) {
+            return bad(format!(
+                "colour_jitter = {} must be in 0..=0.5",
+                self.colour_jitter
+            ));
+        }
+        let [lo, hi] = self.clutter;
+        if lo > hi || hi > 64 {
+            return bad(format!(
+                "clutter = [{lo}, {hi}] must satisfy low <= high <= 64"
+            ));
         }
         Ok(())
     }
@@ -108,6 +161,22 @@ pub struct Look {
     pub vignette: f32,
     pub noise_std: f32,
     pub blur: bool,
+    /// Brightness gradient: `shade *= 1 + gx * dx / cx + gy * dy / cy` (offsets from the
+    /// centre over the half sizes).
+    pub gradient: [f32; 2],
+    /// A glare patch: centre `(u, v)` in pixels, radius (the Gaussian's sigma) in pixels,
+    /// and its peak, added to 0..1 values.
+    pub glare: Option<Glare>,
+}
+
+/// A bright Gaussian patch (a lamp's reflection on a glossy mat).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Glare {
+    /// Centre as fractions of the frame's width and height.
+    pub centre: [f32; 2],
+    /// Sigma as a fraction of the frame's width.
+    pub radius: f32,
+    pub peak: f32,
 }
 
 impl Look {
@@ -119,6 +188,8 @@ impl Look {
         vignette: 0.0,
         noise_std: 0.0,
         blur: false,
+        gradient: [0.0, 0.0],
+        glare: None,
     };
 
     /// Draws a look from `cfg`'s ranges.
@@ -134,6 +205,7 @@ impl Look {
         let gamma = range(cfg.gamma);
         let vignette = range(cfg.vignette);
         let noise_std = range(cfg.noise_std);
+        let strength = range(cfg.light_gradient);
         let gains = if rng.random::<f32>() < cfg.pink_probability {
             // No IR-cut filter: infrared lifts red and blue over green.
             [
@@ -153,6 +225,13 @@ impl Look {
             [g(), g(), g()]
         };
         let blur = rng.random::<f32>() < cfg.blur_probability;
+        let angle = rng.random_range(0.0..std::f32::consts::TAU);
+        let gradient = [strength * angle.cos(), strength * angle.sin()];
+        let glare = (rng.random::<f32>() < cfg.glare_probability).then(|| Glare {
+            centre: [rng.random_range(0.0..1.0), rng.random_range(0.0..1.0)],
+            radius: rng.random_range(0.04..0.2),
+            peak: rng.random_range(0.2..0.8),
+        });
         Self {
             gains,
             exposure,
@@ -160,6 +239,8 @@ impl Look {
             vignette,
             noise_std,
             blur,
+            gradient,
+            glare,
         }
     }
 
@@ -187,13 +268,29 @@ impl Look {
             .flatten();
         let (cx, cy) = (w as f32 / 2.0, h as f32 / 2.0);
         let r2_max = cx * cx + cy * cy;
+        let [gx, gy] = self.gradient;
+        // Glare in pixels: centre, and -1 / (2 sigma^2).
+        let glare = self.glare.map(|g| {
+            let sigma = (g.radius * w as f32).max(0.5);
+            (
+                g.centre[0] * w as f32,
+                g.centre[1] * h as f32,
+                -0.5 / (sigma * sigma),
+                g.peak,
+            )
+        });
         for (j, row) in rgb.chunks_exact_mut(w * 3).enumerate() {
             let dy = j as f32 + 0.5 - cy;
             for (i, px) in row.chunks_exact_mut(3).enumerate() {
                 let dx = i as f32 + 0.5 - cx;
-                let shade = 1.0 - self.vignette * (dx * dx + dy * dy) / r2_max;
+                let light = (1.0 + gx * dx / cx + gy * dy / cy).max(0.0);
+                let shade = (1.0 - self.vignette * (dx * dx + dy * dy) / r2_max) * light;
+                let flare = glare.map_or(0.0, |(gu, gv, k, peak)| {
+                    let (du, dv) = (i as f32 + 0.5 - gu, j as f32 + 0.5 - gv);
+                    peak * (k * (du * du + dv * dv)).exp()
+                });
                 for c in 0..3 {
-                    let mut v = (lut[c][px[c] as usize] * shade).min(1.0) * 255.0;
+                    let mut v = (lut[c][px[c] as usize] * shade + flare).min(1.0) * 255.0;
                     if let Some(n) = &noise {
                         v += n.sample(rng);
                     }
@@ -214,6 +311,10 @@ pub struct Appearance {
     cfg: AppearanceConfig,
     rng: ChaCha8Rng,
     look: Look,
+    /// The scene drawn with the look (`cfg.scene`).
+    scene: Option<Scene>,
+    /// Counts draws, so the world can tell when to repaint.
+    generation: u64,
     frames: u32,
 }
 
@@ -223,12 +324,39 @@ impl Appearance {
         // A stream of its own: the sim's seed, offset so it never equals the physics'.
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6170_7065_6172_616e);
         let look = Look::draw(&cfg, &mut rng);
+        let scene = cfg.scene.then(|| Scene::draw(&cfg, &mut rng));
         Self {
             cfg,
             rng,
             look,
+            scene,
+            generation: 0,
             frames: 0,
         }
+    }
+
+    /// The scene drawn with the current look (`None` unless `scene = true`).
+    pub fn scene(&self) -> Option<&Scene> {
+        self.scene.as_ref()
+    }
+
+    /// Changes whenever a new look (and scene) is drawn.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Counts a frame, drawing a new look (and scene) first when one is due.
+    pub fn next_frame(&mut self) {
+        if self.cfg.redraw_every_frames > 0 && self.frames >= self.cfg.redraw_every_frames {
+            self.redraw();
+        }
+        self.frames += 1;
+    }
+
+    /// Applies the current look to a frame (no counting, no redraw).
+    pub fn apply_look(&mut self, width: u32, height: u32, rgb: &mut [u8]) {
+        let look = self.look;
+        look.apply(width, height, &mut self.rng, rgb);
     }
 
     /// The look frames get now.
@@ -239,17 +367,17 @@ impl Appearance {
     /// A new episode: a new look.
     pub fn redraw(&mut self) {
         self.look = Look::draw(&self.cfg, &mut self.rng);
+        if self.cfg.scene {
+            self.scene = Some(Scene::draw(&self.cfg, &mut self.rng));
+        }
+        self.generation += 1;
         self.frames = 0;
     }
 
-    /// Applies the current look to a frame, redrawing it first when it is due.
+    /// [`Self::next_frame`] then [`Self::apply_look`].
     pub fn apply(&mut self, width: u32, height: u32, rgb: &mut [u8]) {
-        if self.cfg.redraw_every_frames > 0 && self.frames >= self.cfg.redraw_every_frames {
-            self.redraw();
-        }
-        self.frames += 1;
-        let look = self.look;
-        look.apply(width, height, &mut self.rng, rgb);
+        self.next_frame();
+        self.apply_look(width, height, rgb);
     }
 }
 

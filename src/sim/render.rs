@@ -496,6 +496,8 @@ pub struct Renderer {
     rays: Vec<PixelRay>,
     /// Wall colour per image row.
     wall_rows: Vec<[u8; 3]>,
+    /// Per-pixel colours beyond the ground (RGB8, a whole frame), instead of `wall_rows`.
+    backdrop: Option<Vec<u8>>,
 }
 
 /// The ground footprint of one pixel: the difference between the ground points of the
@@ -583,6 +585,7 @@ impl Renderer {
             camera,
             rays,
             wall_rows: Vec::new(),
+            backdrop: None,
         };
         renderer.set_wall_rgb(DEFAULT_WALL_RGB);
         Ok(renderer)
@@ -601,6 +604,37 @@ impl Renderer {
                 rgb.map(|c| (c as f32 * gain).round().clamp(0.0, 255.0) as u8)
             })
             .collect();
+    }
+
+    /// Paints the mat anew (same size and resolution, so the ray table stays): `strokes`
+    /// on `mat_rgb`, surrounded by `floor_rgb`. Scene randomisation calls it per scene.
+    pub fn repaint(
+        &mut self,
+        strokes: &[PaintStroke],
+        mat_rgb: [u8; 3],
+        floor_rgb: [u8; 3],
+    ) -> Result<(), SimError> {
+        let t = &self.texture;
+        self.texture = MatTexture::new(strokes, t.mat_size, t.px_per_m, mat_rgb, floor_rgb)?;
+        Ok(())
+    }
+
+    /// What the camera sees where its rays miss the ground: a whole RGB8 frame whose pixels
+    /// are used there (walls, furniture, people), or `None` for the plain wall gradient.
+    pub fn set_backdrop(&mut self, image: Option<Vec<u8>>) -> Result<(), SimError> {
+        if let Some(img) = &image
+            && img.len() != self.frame_len()
+        {
+            return Err(SimError::Invalid(format!(
+                "backdrop of {} bytes for a {}x{} camera (needs {})",
+                img.len(),
+                self.camera.width,
+                self.camera.height,
+                self.frame_len()
+            )));
+        }
+        self.backdrop = image;
+        Ok(())
     }
 
     /// The texture this renderer draws.
@@ -639,15 +673,23 @@ impl Renderer {
         let levels = &tex.levels;
         let inv_scale: [f32; NUM_LEVELS] = std::array::from_fn(|l| 1.0 / (1u32 << l) as f32);
 
-        for ((rays, row), wall) in self
+        for (j, ((rays, row), wall)) in self
             .rays
             .chunks_exact(w)
             .zip(out.chunks_exact_mut(w * 3))
             .zip(self.wall_rows.iter())
+            .enumerate()
         {
-            for (ray, px) in rays.iter().zip(row.chunks_exact_mut(3)) {
+            let backdrop = self
+                .backdrop
+                .as_deref()
+                .and_then(|b| b.get(j * w * 3..(j + 1) * w * 3));
+            for (i, (ray, px)) in rays.iter().zip(row.chunks_exact_mut(3)).enumerate() {
                 if ray.probes == 0 {
-                    px.copy_from_slice(wall);
+                    match backdrop {
+                        Some(b) => px.copy_from_slice(&b[i * 3..i * 3 + 3]),
+                        None => px.copy_from_slice(wall),
+                    }
                     continue;
                 }
                 let l0 = ray.level as usize;

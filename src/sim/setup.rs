@@ -113,8 +113,8 @@ fn renderer(cfg: &SimConfig, track: &Track) -> Result<Renderer, SimError> {
         &track.paint(),
         track.mat_size(),
         cfg.mat_px_per_m,
-        [96, 120, 92],
-        [150, 130, 110],
+        super::scene::SIM_MAT_RGB,
+        super::scene::SIM_FLOOR_RGB,
     )?;
     Renderer::new(texture, cfg.camera)
 }

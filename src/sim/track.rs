@@ -35,6 +35,35 @@ pub const EDGE_RGB: [u8; 3] = [235, 190, 30];
 /// The centre line's colour (white).
 pub const CENTRE_RGB: [u8; 3] = [240, 240, 240];
 
+/// How a road is painted: colours and line widths. The simulator's own mat is
+/// [`RoadPaint::SIM`]; appearance randomisation (`sim::scene`) draws others, such as
+/// JetBot's printed mat (black road, white lines on white) or tape on a floor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RoadPaint {
+    /// The road surface; `None`: unpainted (the mat shows through, as with tape lines).
+    pub road_rgb: Option<[u8; 3]>,
+    /// Both edge lines, centred on the road's edges; `None`: none.
+    pub edge_rgb: Option<[u8; 3]>,
+    pub edge_width_m: f32,
+    /// The centre line; `None`: none.
+    pub centre_rgb: Option<[u8; 3]>,
+    pub centre_width_m: f32,
+    /// Dash and gap lengths in metres; `None`: a solid line.
+    pub centre_dash_m: Option<(f32, f32)>,
+}
+
+impl RoadPaint {
+    /// The simulator's own mat: dark grey road, yellow edges, white dashed centre line.
+    pub const SIM: RoadPaint = RoadPaint {
+        road_rgb: Some(ROAD_RGB),
+        edge_rgb: Some(EDGE_RGB),
+        edge_width_m: EDGE_LINE_WIDTH_M,
+        centre_rgb: Some(CENTRE_RGB),
+        centre_width_m: CENTRE_LINE_WIDTH_M,
+        centre_dash_m: Some(CENTRE_DASH_M),
+    };
+}
+
 /// The least distance between the road (edge lines included) and the mat's sides.
 const MAT_MARGIN_M: f64 = 0.05;
 /// Closure tolerances.
@@ -701,12 +730,20 @@ impl Track {
     // ------------------------------------------------------------------------------------
     // Paint
 
-    /// Strokes for the renderer, in drawing order: the road surface, the two yellow edges,
-    /// the white dashed centre line. All are closed polylines; arcs are sampled to within
-    /// 1 mm of chord error.
+    /// Strokes for the renderer in the simulator's own paint ([`RoadPaint::SIM`]): the road
+    /// surface, the two yellow edges, the white dashed centre line.
     pub fn paint(&self) -> Vec<PaintStroke> {
+        self.paint_with(&RoadPaint::SIM)
+    }
+
+    /// Strokes for the renderer in drawing order: the road surface, the two edge lines
+    /// (centred on the road's edges), the centre line; each only where `style` has a
+    /// colour for it. All are closed polylines; arcs are sampled to within 1 mm of chord
+    /// error. The geometry (road width, lanes) stays the track's whatever the paint.
+    pub fn paint_with(&self, style: &RoadPaint) -> Vec<PaintStroke> {
         let half = self.lane_width;
-        let stations = self.paint_stations(half + f64::from(EDGE_LINE_WIDTH_M));
+        let edge_w = style.edge_width_m.clamp(0.0, 0.1);
+        let stations = self.paint_stations(half + f64::from(edge_w.max(EDGE_LINE_WIDTH_M)));
         let line = |lat: f64| -> Vec<(f32, f32)> {
             stations
                 .iter()
@@ -723,12 +760,18 @@ impl Track {
             dash,
             closed: true,
         };
-        vec![
-            stroke(0.0, (2.0 * half) as f32, ROAD_RGB, None),
-            stroke(half, EDGE_LINE_WIDTH_M, EDGE_RGB, None),
-            stroke(-half, EDGE_LINE_WIDTH_M, EDGE_RGB, None),
-            stroke(0.0, CENTRE_LINE_WIDTH_M, CENTRE_RGB, Some(CENTRE_DASH_M)),
-        ]
+        let mut out = Vec::with_capacity(4);
+        if let Some(rgb) = style.road_rgb {
+            out.push(stroke(0.0, (2.0 * half) as f32, rgb, None));
+        }
+        if let Some(rgb) = style.edge_rgb {
+            out.push(stroke(half, edge_w, rgb, None));
+            out.push(stroke(-half, edge_w, rgb, None));
+        }
+        if let Some(rgb) = style.centre_rgb {
+            out.push(stroke(0.0, style.centre_width_m, rgb, style.centre_dash_m));
+        }
+        out
     }
 
     /// Progress values where the painted polylines get a vertex: each segment's start, and

@@ -73,6 +73,8 @@ pub struct World {
     stall_window: (f64, f64),
     /// Randomised camera looks, when on (`[sim.appearance]`).
     appearance: Option<Appearance>,
+    /// The appearance generation whose scene the renderer shows.
+    painted: Option<u64>,
 }
 
 /// A robot that makes no progress along the track (circling, stuck, or driving the wrong
@@ -126,6 +128,7 @@ impl World {
             stall: StallRule::default(),
             stall_window: (0.0, 0.0),
             appearance: None,
+            painted: None,
         };
         w.reset_at(0.0);
         w
@@ -147,6 +150,11 @@ impl World {
         self.appearance = appearance;
     }
 
+    /// The appearance randomiser, when on.
+    pub fn appearance(&self) -> Option<&Appearance> {
+        self.appearance.as_ref()
+    }
+
     pub fn set_stall_rule(&mut self, rule: StallRule) {
         self.stall = rule;
     }
@@ -157,6 +165,10 @@ impl World {
 
     /// The camera frame at the current pose into `out` (`width * height * 3` RGB8).
     pub fn observe(&mut self, out: &mut [u8]) {
+        if let Some(a) = self.appearance.as_mut() {
+            a.next_frame();
+        }
+        self.show_scene();
         let pose = self.robot.pose;
         match &self.frames {
             FrameMaker::Render(r) => {
@@ -172,7 +184,30 @@ impl World {
                 FrameMaker::Render(r) => r.camera(),
                 FrameMaker::Replay(s) => s.camera(),
             };
-            a.apply(c.width, c.height, out);
+            a.apply_look(c.width, c.height, out);
+        }
+    }
+
+    /// Repaints the rendered mat and backdrop when the appearance has drawn a new scene.
+    /// Replayed frames keep the scene they recorded.
+    fn show_scene(&mut self) {
+        let (Some(a), FrameMaker::Render(r)) = (&self.appearance, &mut self.frames) else {
+            return;
+        };
+        let generation = a.generation();
+        if self.painted == Some(generation) {
+            return;
+        }
+        self.painted = Some(generation);
+        let Some(scene) = a.scene() else { return };
+        let strokes = self.track.paint_with(&scene.paint);
+        let backdrop = scene.backdrop(r.camera());
+        if let Err(e) = r
+            .repaint(&strokes, scene.mat_rgb, scene.floor_rgb)
+            .and_then(|()| r.set_backdrop(Some(backdrop)))
+        {
+            // Settings were validated; keep the previous scene rather than stop the run.
+            tracing::warn!("scene randomisation: {e}; keeping the previous scene");
         }
     }
 

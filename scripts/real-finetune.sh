@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# Fine-tuning on real frames (README, "Sim-to-real, measured"): `train il` on N real
+# training frames spread evenly over the earlier 80 % by capture time, from a sim-pretrained
+# model and from random weights, each scored
+# on the latest 20 % (`jetpilot score --split-by-time 0.2`, the frames it never saw).
+#
+#   scripts/real-finetune.sh REALDATA INIT.onnx [OUT]
+#       REALDATA: labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat)
+#       INIT.onnx: the sim-pretrained xy model (e.g. .cache/s2r/matched/il/best.onnx)
+#
+# Env: SIZES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
+# epochs = IMAGES / N, at least 10), BIN (skip the build). Writes OUT/finetune.csv and
+# OUT/finetune.png (mean error against N, one line per start), OUT/<start>_<N>/.
+# The real frames are linked, not copied, into OUT.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+REAL=${1:-}
+INIT=${2:-}
+OUT=${3:-.cache/real-finetune}
+SIZES=${SIZES:-25 50 100 all}
+IMAGES=${IMAGES:-3000}
+if [ -z "$REAL" ] || [ ! -d "$REAL" ] || [ -z "$INIT" ] || [ ! -f "$INIT" ]; then
+  echo "usage: scripts/real-finetune.sh REALDATA INIT.onnx [OUT]: REALDATA must be a folder of" >&2
+  echo "labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat) and INIT.onnx a model;" >&2
+  echo "got '${REAL}' and '${INIT}'" >&2
+  exit 2
+fi
+REAL=$(cd "$REAL" && pwd)
+INIT=$(cd "$(dirname "$INIT")" && pwd)/$(basename "$INIT")
+
+ORT_LIB=$(scripts/install-onnxruntime.sh)
+export ORT_DYLIB_PATH="$ORT_LIB"
+if [ -n "${BIN:-}" ]; then
+  B=$BIN
+else
+  scripts/install-build-deps.sh
+  cargo build --release --features train --locked
+  B=target/release/jetpilot
+fi
+mkdir -p "$OUT"
+
+# Non-empty frames sorted by the uuid1 capture time in their names
+# (xy_XXX_YYY_<time_low>-<time_mid>-<version+time_hi>-...): time_hi, time_mid, time_low.
+find "$REAL" -name 'xy_*.jpg' -size +0 | awk -F/ '{
+  n = $NF; split(n, p, "_"); split(p[4], u, "-");
+  print substr(u[3], 2) u[2] u[1] "\t" $0 }' | sort | cut -f2 > "$OUT/by_time.txt"
+TOTAL=$(wc -l < "$OUT/by_time.txt")
+TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the latest ~20 %
+echo "real frames: $TOTAL, the earliest $TRAIN to train on, the rest scored"
+
+echo "frames,start,mean_px,baseline_px,epochs" > "$OUT/finetune.csv"
+for n in $SIZES; do
+  [ "$n" = all ] && n=$TRAIN
+  d="$OUT/frames_$n"
+  rm -rf "$d"
+  mkdir -p "$d"
+  # N frames evenly spread over the training part.
+  awk -v n="$n" -v t="$TRAIN" 'NR <= t && (NR - 1) % (t / n) < 1 && c < n { print; c++ }' \
+    "$OUT/by_time.txt" | while read -r f; do ln -s "$f" "$d/"; done
+  got=$(find "$d" -name '*.jpg' | wc -l)
+  epochs=$(( IMAGES / got ))
+  [ "$epochs" -lt 10 ] && epochs=10
+  for start in sim random; do
+    r="$OUT/${start}_$n"
+    rm -rf "$r"
+    init=()
+    [ "$start" = sim ] && init=(--init "$INIT")
+    echo "== $start start, $got real frames, $epochs epochs"
+    "$B" train il --config config/sim.toml --input-size 96 --head xy --epochs "$epochs" \
+      --seed 1 "${init[@]}" --data "$d" --out "$r" > "$r.log" 2>&1
+    "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
+      > "$r/score.txt"
+    mean=$(awk '/^  model/ { print $3 }' "$r/score.txt")
+    base=$(awk '/^  baseline/ { print $3 }' "$r/score.txt")
+    echo "   mean error $mean px (baseline $base px)"
+    echo "$got,$start,$mean,$base,$epochs" >> "$OUT/finetune.csv"
+  done
+done
+"$B" train plot --csv "$OUT/finetune.csv" --x frames --y mean_px --series start \
+  --title "real frames: mean error against training frames" --out "$OUT/finetune.png"
+cat "$OUT/finetune.csv"
