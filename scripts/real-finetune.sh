@@ -71,8 +71,8 @@ for n in $SIZES; do
       --seed 1 "${init[@]}" --data "$d" --out "$r" > "$r.log" 2>&1
     "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
       > "$r/score.txt"
-    mean=$(awk '/^  model/ { print $3 }' "$r/score.txt")
-    base=$(awk '/^  baseline/ { print $3 }' "$r/score.txt")
+    mean=$(awk '$1 == "model" && $2 == "mean" { print $3 }' "$r/score.txt")
+    base=$(awk '$1 == "baseline" && $2 == "mean" { print $3 }' "$r/score.txt")
     echo "   mean error $mean px (baseline $base px)"
     echo "$got,$start,$mean,$base,$epochs" >> "$OUT/finetune.csv"
   done
