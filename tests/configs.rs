@@ -76,5 +76,14 @@ fn shipped_tracks_load_both_ways_round() {
         names.push(track.name().to_string());
     }
     names.sort();
-    assert_eq!(names, ["jetbot_mat", "narrow", "s_bends", "sharp_corners"]);
+    assert_eq!(
+        names,
+        [
+            "jetbot_mat",
+            "narrow",
+            "narrow_print",
+            "s_bends",
+            "sharp_corners"
+        ]
+    );
 }
