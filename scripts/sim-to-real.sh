@@ -4,7 +4,7 @@
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)
 #
-# Three policies, the same recipe (600 expert frames, 96x96 input, EPOCHS epochs, default
+# Four policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
 # 20), differing only in what the simulator showed them:
 #   plain:      the default pinhole camera, plain appearance (the starting point);
 #   randomised: --camera jetbot (the fitted fisheye) and --randomise (camera looks, road
@@ -13,6 +13,10 @@
 #               real mat's looks), with recovery swerves every 2 s, and the expert's target
 #               0.135 m ahead instead of 0.22 m, so the labels' mean matches the real
 #               labels' (about (105, 125) px; 0.22 m gives (93, 87)).
+#   scattered:  as matched, but collected the way JetBot's notebook does rather than by
+#               driving: the robot put down at random poses on the road or up to 5 cm
+#               beside it, within 40 degrees of its heading (`sim --scatter`).
+# VARIANTS="matched scattered" runs some of them only.
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
 # time; the mean-label baseline from the earlier 80 %). Writes OUT/<name>/score/.
 set -euo pipefail
@@ -39,26 +43,45 @@ fi
 CFG=config/sim.toml
 mkdir -p "$OUT"
 
+VARIANTS=${VARIANTS:-plain randomised matched scattered}
+wanted() { [[ " $VARIANTS " == *" $1 "* ]]; }
+
+# run NAME drive|scatter SIM_ARGS...
 run() {
-  local name=$1
-  shift
+  local name=$1 mode=$2
+  shift 2
   local d="$OUT/$name"
   rm -rf "$d"
   mkdir -p "$d"
   local cfg=${SIM_CFG:-$CFG}
-  "$B" -q sim --config "$cfg" --expert --seconds 80 --record-every 3 --record-frames 600 \
-    "$@" --record "$d/demos" --record-xy "$d/xy" --png "$d/look" --real "$REAL" > "$d/sim.log"
+  local source=(--scatter 600)
+  if [ "$mode" = drive ]; then
+    source=(--expert --seconds 80 --record-every 3 --record-frames 600 --record "$d/demos")
+  fi
+  "$B" -q sim --config "$cfg" "${source[@]}" "$@" --record-xy "$d/xy" --png "$d/look" \
+    --real "$REAL" > "$d/sim.log"
   "$B" train il --config "$CFG" --input-size 96 --head xy --epochs "$EPOCHS" --seed 1 \
     --data "$d/xy" --out "$d/il" > "$d/il.log" 2>&1
   "$B" score --model "$d/il/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$d/score" \
     | tee "$d/score.txt"
 }
 
-echo "== plain: pinhole camera, plain appearance"
-run plain
-echo "== randomised: JetBot's fisheye, randomised looks and scenes"
-run randomised --camera jetbot --randomise
-echo "== matched: as randomised, narrow road, recovery swerves, targets as near as people click"
 sed 's/^lookahead_m = .*/lookahead_m = 0.135/' "$CFG" > "$OUT/matched.toml"
-SIM_CFG="$OUT/matched.toml" run matched --camera jetbot --randomise \
-  --track config/tracks/narrow_print.toml --swerve-every 2
+if wanted plain; then
+  echo "== plain: pinhole camera, plain appearance"
+  run plain drive
+fi
+if wanted randomised; then
+  echo "== randomised: JetBot's fisheye, randomised looks and scenes"
+  run randomised drive --camera jetbot --randomise
+fi
+if wanted matched; then
+  echo "== matched: as randomised, narrow road, recovery swerves, targets as near as people click"
+  SIM_CFG="$OUT/matched.toml" run matched drive --camera jetbot --randomise \
+    --track config/tracks/narrow_print.toml --swerve-every 2
+fi
+if wanted scattered; then
+  echo "== scattered: as matched, from random poses on and beside the road (JetBot's notebook)"
+  SIM_CFG="$OUT/matched.toml" run scattered scatter --camera jetbot --randomise \
+    --track config/tracks/narrow_print.toml
+fi

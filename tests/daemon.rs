@@ -212,8 +212,11 @@ fn source(frames: u64, then_fail: bool) -> ScriptedSource {
 fn a_nan_model_output_stops_the_motors() {
     let policy =
         ScriptedPolicy::new(|n| Step::Out(if n < 3 { [0.1, 0.2] } else { [f32::NAN, 0.2] }));
+    // The policy's fourth call sees frame 3 unless the daemon dropped a stale frame
+    // (latest frame wins when inference lags, as on a loaded CI machine): then it is a
+    // later frame. Either way the first NaN ends the run.
     assert_fault_stops(source(20, false), policy, |e| {
-        matches!(e, DriveError::BadOutput { seq: 3, .. })
+        matches!(e, DriveError::BadOutput { seq, .. } if *seq >= 3) && e.to_string().contains("NaN")
     });
 }
 

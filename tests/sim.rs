@@ -566,3 +566,74 @@ fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
     assert_eq!(ms.len(), 45);
     assert!(ms.windows(2).all(|w| w[1] - w[0] <= 67), "{ms:?}");
 }
+
+#[test]
+fn scattered_samples_are_labelled_jetbot_files_that_repeat_for_a_seed() {
+    // `sim --scatter N --record-xy DIR`: N frames from random poses on and beside the road,
+    // named the way JetBot's notebook names them, the same for the same seed.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(&cfg, "[sim.camera]\nwidth = 48\nheight = 48\n").unwrap();
+    let scatter = |name: &str| {
+        let xy = dir.path().join(name);
+        let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+            .args(["-q", "sim", "--scatter", "16", "--camera", "jetbot"])
+            .args(["--randomise", "--config"])
+            .arg(&cfg)
+            .arg("--record-xy")
+            .arg(&xy)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            String::from_utf8_lossy(&out.stdout).contains("wrote 16 scattered samples"),
+            "{}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        let folder = jetpilot::dataset::jetbot_xy::XyFolder::open(&xy).unwrap();
+        assert!(folder.warnings().is_empty(), "{:?}", folder.warnings());
+        let mut files: Vec<(String, Vec<u8>)> = folder
+            .samples()
+            .iter()
+            .map(|s| {
+                let name = s.path.file_name().unwrap().to_string_lossy().into_owned();
+                (name, std::fs::read(&s.path).unwrap())
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    let a = scatter("a");
+    assert_eq!(a.len(), 16);
+    // Every frame is a different place, and the targets spread across the frame.
+    let labels: Vec<(u32, u32)> = a
+        .iter()
+        .map(|(n, _)| jetpilot::dataset::jetbot_xy::parse_file_name(n).unwrap())
+        .collect();
+    assert!(labels.iter().all(|&(x, y)| x < 48 && y < 48), "{labels:?}");
+    let xs: Vec<u32> = labels.iter().map(|l| l.0).collect();
+    let spread = xs.iter().max().unwrap() - xs.iter().min().unwrap();
+    assert!(spread >= 10, "targets all in one column: {labels:?}");
+    let frames: std::collections::BTreeSet<&Vec<u8>> = a.iter().map(|(_, f)| f).collect();
+    assert_eq!(frames.len(), 16);
+    assert_eq!(a, scatter("b"), "the same seed must give the same samples");
+
+    // --record-xy alone has nowhere to take frames from.
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--expert", "--seconds", "1", "--config"])
+        .arg(&cfg)
+        .arg("--record-xy")
+        .arg(dir.path().join("c"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--record") && stderr.contains("--scatter"),
+        "{stderr}"
+    );
+}

@@ -87,9 +87,18 @@ pub struct SimArgs {
     /// poses, rewards, JetBot target labels) in this folder.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
-    /// With --record: also write JetBot's road-following folder (xy_XXX_YYY_<uuid>.jpg).
-    #[arg(long, value_name = "DIR", requires = "record")]
+    /// With --record or --scatter: also write JetBot's road-following folder
+    /// (xy_XXX_YYY_<uuid>.jpg).
+    #[arg(long, value_name = "DIR")]
     record_xy: Option<PathBuf>,
+    /// Instead of driving, collect data the way JetBot's road-following notebook does: put
+    /// the robot down at N random poses on the road or up to 5 cm beside it, within 40
+    /// degrees of the road's heading, one frame each (a new look and scene each with
+    /// --randomise), labelled with the lane point `[sim.expert] lookahead_m` past the
+    /// nearest road point. Written with --record-xy DIR.
+    #[arg(long, value_name = "N", requires = "record_xy",
+          conflicts_with_all = ["model", "expert", "record", "realtime", "swerve_every"])]
+    scatter: Option<u64>,
     /// With --record: keep every Nth control step only, so a fixed number of demonstrations
     /// spans more of the track (e.g. 331 frames over a whole lap: `--seconds 33.1
     /// --record-every 3`, as a human recording at 10 fps would).
@@ -332,6 +341,12 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     if args.realtime {
         return realtime(&cfg, args.model.as_deref(), args.seconds);
     }
+    if let (Some(n), Some(dir)) = (args.scatter, &args.record_xy) {
+        return scatter(&cfg, n, dir, args.png.as_deref(), args.real.as_deref());
+    }
+    if args.record_xy.is_some() && args.record.is_none() {
+        anyhow::bail!("--record-xy needs --record DIR (a drive) or --scatter N (random poses)");
+    }
     let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
     let mut recorder = match &args.record {
         Some(dir) => {
@@ -365,40 +380,124 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
         if !driven.strip.is_empty() {
-            let n = driven.strip.len() as u32;
-            let mut strip = vec![0u8; (w * n * h * 3) as usize];
-            for (i, f) in driven.strip.iter().enumerate() {
-                for row in 0..h as usize {
-                    let src = &f[row * w as usize * 3..(row + 1) * w as usize * 3];
-                    let dst = (row * (w * n) as usize + i * w as usize) * 3;
-                    strip[dst..dst + src.len()].copy_from_slice(src);
-                }
-            }
-            write_png(&dir.join("frames.png"), w * n, h, &strip)?;
+            write_strip(&dir.join("frames.png"), &driven.strip, (w, h))?;
         }
         write_trace(&rig, &driven.trace, &dir.join("trace.png"))?;
         println!("wrote {0}/frames.png and {0}/trace.png", dir.display());
         if let Some(folder) = &args.real {
-            let real = contact::pick_real_frames(folder, driven.strip.len().max(1))?;
-            for s in &real.skipped {
-                eprintln!("warning: skipped {s}");
-            }
-            let sim: Vec<&[u8]> = driven.strip.iter().map(|f| f.as_slice()).collect();
-            let sheet = contact::contact_sheet(&sim, w, h, &real.frames, 224);
-            let path = dir.join("sim_vs_real.png");
-            sheet
-                .save(&path)
-                .with_context(|| format!("cannot write {}", path.display()))?;
-            println!(
-                "wrote {}: {} sim frames above {} real frames from {}",
-                path.display(),
-                sim.len(),
-                real.frames.len(),
-                folder.display()
-            );
+            write_contact_sheet(dir, folder, &driven.strip, (w, h))?;
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Camera frames side by side in one PNG.
+fn write_strip(path: &Path, frames: &[Vec<u8>], (w, h): (u32, u32)) -> anyhow::Result<()> {
+    let n = frames.len().max(1) as u32;
+    let mut strip = vec![0u8; (w * n * h * 3) as usize];
+    for (i, f) in frames.iter().enumerate() {
+        for row in 0..h as usize {
+            let src = &f[row * w as usize * 3..(row + 1) * w as usize * 3];
+            let dst = (row * (w * n) as usize + i * w as usize) * 3;
+            strip[dst..dst + src.len()].copy_from_slice(src);
+        }
+    }
+    write_png(path, w * n, h, &strip)?;
+    Ok(())
+}
+
+/// `sim --png DIR --real FOLDER`: the sim frames above as many real ones.
+fn write_contact_sheet(
+    dir: &Path,
+    folder: &Path,
+    frames: &[Vec<u8>],
+    (w, h): (u32, u32),
+) -> anyhow::Result<()> {
+    let real = contact::pick_real_frames(folder, frames.len().max(1))?;
+    for s in &real.skipped {
+        eprintln!("warning: skipped {s}");
+    }
+    let sim: Vec<&[u8]> = frames.iter().map(|f| f.as_slice()).collect();
+    let sheet = contact::contact_sheet(&sim, w, h, &real.frames, 224);
+    let path = dir.join("sim_vs_real.png");
+    sheet
+        .save(&path)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!(
+        "wrote {}: {} sim frames above {} real frames from {}",
+        path.display(),
+        sim.len(),
+        real.frames.len(),
+        folder.display()
+    );
+    Ok(())
+}
+
+/// `jetpilot sim --scatter N --record-xy DIR`: JetBot-notebook-style samples from random
+/// poses; with --png, the first eight with their targets marked.
+fn scatter(
+    cfg: &Config,
+    n: u64,
+    dir: &Path,
+    png: Option<&Path>,
+    real: Option<&Path>,
+) -> anyhow::Result<ExitCode> {
+    use jetpilot::sim::scatter::{ScatterParams, write_scattered};
+    let mut rig = setup::build(cfg)?;
+    let params = ScatterParams {
+        lookahead_m: cfg.sim.expert.lookahead_m,
+        ..ScatterParams::default()
+    };
+    let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
+    let mut shown: Vec<Vec<u8>> = Vec::new();
+    let summary = write_scattered(
+        &mut rig.world,
+        &rig.camera,
+        &params,
+        n,
+        cfg.sim.seed,
+        dir,
+        |frame, (px, py)| {
+            if shown.len() < 8 {
+                let mut f = frame.to_vec();
+                mark(&mut f, w, h, px, py);
+                shown.push(f);
+            }
+        },
+    )
+    .with_context(|| format!("scattered samples into {}", dir.display()))?;
+    println!(
+        "wrote {} scattered samples to {} ({} poses dropped: target out of view)",
+        summary.written,
+        dir.display(),
+        summary.out_of_view
+    );
+    if summary.written < n {
+        anyhow::bail!(
+            "only {} of {n} samples had their target in view: is the camera looking at the road?",
+            summary.written
+        );
+    }
+    if let Some(pdir) = png {
+        std::fs::create_dir_all(pdir)
+            .with_context(|| format!("cannot create {}", pdir.display()))?;
+        write_strip(&pdir.join("frames.png"), &shown, (w, h))?;
+        println!("wrote {}/frames.png (targets in green)", pdir.display());
+        if let Some(folder) = real {
+            write_contact_sheet(pdir, folder, &shown, (w, h))?;
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A green 5x5 square at (px, py), clipped to the frame.
+fn mark(rgb: &mut [u8], w: u32, h: u32, px: u32, py: u32) {
+    for y in py.saturating_sub(2)..(py + 3).min(h) {
+        for x in px.saturating_sub(2)..(px + 3).min(w) {
+            let i = ((y * w + x) * 3) as usize;
+            rgb[i..i + 3].copy_from_slice(&[40, 220, 60]);
+        }
+    }
 }
 
 pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {

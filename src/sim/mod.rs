@@ -27,6 +27,7 @@ pub mod realtime;
 pub mod render;
 pub mod reward;
 pub mod robot;
+pub mod scatter;
 pub mod scene;
 pub mod setup;
 pub mod synth;

@@ -145,6 +145,18 @@ impl World {
         }
     }
 
+    /// Puts the robot down at rest at `pose`, anywhere (on the road or not), with a new look
+    /// and scene when the appearance is randomised: one scattered sample
+    /// ([`super::scatter`]). Progress and counters are left as they are.
+    pub fn place(&mut self, pose: Pose2) {
+        self.robot.reset(pose);
+        self.last_s = self.track.query(pose.x, pose.y).s;
+        self.view_valid = true;
+        if let Some(a) = self.appearance.as_mut() {
+            a.redraw();
+        }
+    }
+
     /// Randomises the camera's look from now on (`None`: plain frames).
     pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
         self.appearance = appearance;
