@@ -2,8 +2,9 @@
 //! the robot, and the geometry that links its pixels with points on the flat mat.
 //!
 //! This module owns the camera's placement on the robot (height, forward offset, downward
-//! tilt), its intrinsics (square pixels, principal point at the image centre, focal length
-//! from the horizontal field of view), pixel <-> ground conversions, and the ground-plane
+//! tilt), its intrinsics (principal point at the image centre; a pinhole's focal length
+//! from the horizontal field of view, a fisheye's from the diagonal one of the frame it
+//! captured, which may have been scaled to another aspect ratio since), pixel <-> ground conversions, and the ground-plane
 //! homography that `render` and `synth` build on.
 //!
 //! Conventions:
@@ -56,6 +57,11 @@ pub struct CameraModel {
     pub fisheye_fov_deg: f32,
     /// Fisheye: OpenCV's k1..k4.
     pub fisheye_k: [f32; 4],
+    /// Fisheye: width / height of the frame the camera captured before it was scaled to
+    /// `width x height`; `fisheye_fov_deg` spans that frame's diagonal, and a degree spans
+    /// different pixel counts across and down. JetBot captures 816x616 and scales it to
+    /// 224x224: 1.3247. Unset: the frame was not rescaled (`width / height`).
+    pub capture_aspect: Option<f32>,
     /// Height of the optical centre above the ground, metres.
     pub height_m: f32,
     /// Downward pitch of the optical axis below the horizontal, degrees.
@@ -73,6 +79,7 @@ impl Default for CameraModel {
             hfov_deg: 120.0,
             fisheye_fov_deg: 160.0,
             fisheye_k: [0.0; 4],
+            capture_aspect: None,
             height_m: 0.10,
             tilt_deg: 25.0,
             forward_m: 0.05,
@@ -89,17 +96,23 @@ struct Extrinsics {
     rot: Matrix3<f64>,
 }
 
+/// JetBot's capture aspect ratio: its camera class captures 816x616 (the IMX219's full
+/// 4:3 field, binned) and scales it to 224x224.
+pub const JETBOT_CAPTURE_ASPECT: f32 = 816.0 / 616.0;
+
 /// Downward tilt of JetBot's camera, degrees, fitted to the real frames of
 /// `../shared/realdata/jetbot_xy_mat/low_tilt` (README, "JetBot's camera, fitted so far"):
 /// the far wall's foot, a few metres away, lies 25-35 px below the top of the 224x224
-/// frame, so the horizon is about 27 px down, `112 - 27 = 85` px above the centre, and
-/// `85 / f` with `f = 1.98 px/degree` for a 160 degree diagonal is 43 degrees.
-pub const JETBOT_TILT_DEG: f32 = 43.0;
+/// frame, so the horizon is about 27 px down, `112 - 27 = 85` px above the centre. 160
+/// degrees over the 816x616 capture's diagonal, scaled to 224 px down from 616, give
+/// `fy = 2.324 px/degree`, and `85 / fy` is 36.6 degrees. (With square pixels, 1.98
+/// px/degree, it was 43 degrees, and the bottom rows looked back under the camera.)
+pub const JETBOT_TILT_DEG: f32 = 36.6;
 
 impl CameraModel {
     /// JetBot's camera: the IMX219 with its 160 degree (diagonal) fisheye, equidistant
-    /// (`k = 0`), 10 cm up and 5 cm ahead of the axle, tilted down [`JETBOT_TILT_DEG`],
-    /// producing `width x height` frames.
+    /// (`k = 0`), its 4:3 capture scaled to `width x height` ([`JETBOT_CAPTURE_ASPECT`]),
+    /// 10 cm up and 5 cm ahead of the axle, tilted down [`JETBOT_TILT_DEG`].
     pub fn jetbot(width: u32, height: u32) -> Self {
         Self {
             width,
@@ -107,6 +120,7 @@ impl CameraModel {
             lens: LensKind::Fisheye,
             fisheye_fov_deg: 160.0,
             fisheye_k: [0.0; 4],
+            capture_aspect: Some(JETBOT_CAPTURE_ASPECT),
             height_m: 0.10,
             tilt_deg: JETBOT_TILT_DEG,
             forward_m: 0.05,
@@ -130,6 +144,11 @@ impl CameraModel {
             let fov = self.fisheye_fov_deg;
             if !(fov.is_finite() && fov > 1.0 && fov < 300.0) {
                 return bad(format!("fisheye_fov_deg {fov} must be in (1, 300)"));
+            }
+            if let Some(a) = self.capture_aspect
+                && !(a.is_finite() && (0.1..=10.0).contains(&a))
+            {
+                return bad(format!("capture_aspect {a} must be in [0.1, 10]"));
             }
             if self.fisheye_k.iter().any(|k| !k.is_finite()) {
                 return bad(format!("fisheye_k {:?} must be finite", self.fisheye_k));
@@ -161,19 +180,25 @@ impl CameraModel {
         let (w, h) = (self.width as f64, self.height as f64);
         match self.lens {
             LensKind::Pinhole => Lens::pinhole(self.hfov_deg as f64, w, h),
-            LensKind::Fisheye => Lens::fisheye(
-                self.fisheye_fov_deg as f64,
-                w.hypot(h),
-                w / 2.0,
-                h / 2.0,
-                self.fisheye_k.map(f64::from),
-            ),
+            LensKind::Fisheye => {
+                // The captured frame, in units of this frame's width.
+                let aspect = self.capture_aspect.map_or(w / h, f64::from);
+                let captured_h = w / aspect;
+                Lens::fisheye(
+                    self.fisheye_fov_deg as f64,
+                    w.hypot(captured_h),
+                    w / 2.0,
+                    h / 2.0,
+                    self.fisheye_k.map(f64::from),
+                )
+                .with_v_scale(h / captured_h)
+            }
         }
     }
 
     fn focal64(&self) -> f64 {
         match self.lens() {
-            Lens::Pinhole { f, .. } | Lens::Fisheye { f, .. } => f,
+            Lens::Pinhole { f, .. } | Lens::Fisheye { fx: f, .. } => f,
         }
     }
 
@@ -483,25 +508,44 @@ mod tests {
     fn the_jetbot_camera_puts_the_horizon_27_px_down_and_sees_80_degrees_at_the_corners() {
         let cam = CameraModel::jetbot(224, 224);
         cam.validate().unwrap();
-        // f = hypot(224, 224) / 2 / 80 degrees = 1.9799 px/degree; 112 - 43 f = 26.9.
+        // The 816x616 capture in units of the 224 px width: 224 x 169.10, diagonal 280.66
+        // px over 160 degrees: fx = 140.33 px / 1.39626 rad = 100.50 px/rad (1.7541
+        // px/degree); scaled 616 -> 224 down: fy = 1.32468 fx = 133.14 px/rad (2.3237
+        // px/degree). The horizon: 112 - 36.6 * 2.3237 = 26.95.
         assert!(
-            (cam.horizon_v() - 26.86).abs() < 0.05,
+            (cam.horizon_v() - 26.95).abs() < 0.02,
             "{}",
             cam.horizon_v()
         );
+        // The corner is the capture's corner: 80 degrees off axis.
         let corner = cam.lens().off_axis_deg(0.0, 0.0).unwrap();
         assert!((corner - 80.0).abs() < 1e-6, "{corner}");
-        // Half way out along the row through the centre: 56 px / f = 28.3 degrees.
-        let mid = cam.lens().off_axis_deg(168.0, 112.0).unwrap();
-        assert!((mid - 56.0 / 1.979_899).abs() < 1e-3, "{mid}");
-        // The bottom centre sees the ground 43 + 56.6 = 99.6 degrees below the horizontal:
-        // behind the lens, under the camera, 5 cm ahead of the axle minus 1.7 cm.
+        // Half way out along the centre row, 56 px: 56 / 1.7541 = 31.92 degrees; half way
+        // down the centre column: 56 / 2.3237 = 24.10 degrees.
+        let across = cam.lens().off_axis_deg(168.0, 112.0).unwrap();
+        assert!((across - 31.925).abs() < 1e-2, "{across}");
+        let down = cam.lens().off_axis_deg(112.0, 168.0).unwrap();
+        assert!((down - 24.100).abs() < 1e-2, "{down}");
+        // The bottom centre sees the ground 36.6 + 48.20 = 84.80 degrees below the
+        // horizontal: 0.10 m / tan(84.80) = 9.1 mm ahead of the lens, 5 cm ahead of the axle.
         let (f, l) = cam.pixel_to_robot_ground(112.0, 224.0).unwrap();
-        let expect = 0.05 - 0.10 * (99.57f32 - 90.0).to_radians().tan();
+        let expect = 0.05 + 0.10 / 84.80f32.to_radians().tan();
         assert!(
-            (f - expect).abs() < 1e-3 && l.abs() < 1e-4,
+            (f - expect).abs() < 2e-4 && l.abs() < 1e-4,
             "{f} {l} vs {expect}"
         );
+        // Unset, the frame keeps its aspect: square pixels, as before.
+        let square = CameraModel {
+            capture_aspect: None,
+            ..cam
+        };
+        let mid = square.lens().off_axis_deg(168.0, 112.0).unwrap();
+        assert!((mid - 56.0 / 1.979_899).abs() < 1e-3, "{mid}");
+        let bad = CameraModel {
+            capture_aspect: Some(0.0),
+            ..cam
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]

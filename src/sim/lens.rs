@@ -3,7 +3,10 @@
 //! model of JetBot's ~160 degree IMX219 lens.
 //!
 //! Camera frame as in [`super::camera`]: x right, y down, z along the optical axis.
-//! Pixels: continuous `(u, v)`, principal point `(cu, cv)`, focal lengths in pixels.
+//! Pixels: continuous `(u, v)`, principal point `(cu, cv)`, focal lengths in pixels. A
+//! fisheye may have different focal lengths along `u` and `v` (`fx`, `fy`), as OpenCV's
+//! camera matrix allows: JetBot's camera captures 816x616 (4:3) and scales it to 224x224,
+//! so a degree spans fewer pixels across than down.
 //!
 //! ```text
 //! pinhole:  r = f * tan(theta)
@@ -31,7 +34,8 @@ pub enum Lens {
     },
     /// OpenCV's `cv::fisheye` model.
     Fisheye {
-        f: f64,
+        fx: f64,
+        fy: f64,
         cu: f64,
         cv: f64,
         k: [f64; 4],
@@ -53,7 +57,28 @@ impl Lens {
     /// `span_px` pixels.
     pub fn fisheye(fov_deg: f64, span_px: f64, cu: f64, cv: f64, k: [f64; 4]) -> Self {
         let f = (span_px / 2.0) / (fov_deg / 2.0).to_radians();
-        Self::Fisheye { f, cu, cv, k }
+        Self::Fisheye {
+            fx: f,
+            fy: f,
+            cu,
+            cv,
+            k,
+        }
+    }
+
+    /// This fisheye with its `v` axis scaled by `sy` against `u` (`fy = sy * fx`): a frame
+    /// scaled to a different aspect ratio after capture. A pinhole is returned unchanged.
+    pub fn with_v_scale(self, sy: f64) -> Self {
+        match self {
+            Self::Fisheye { fx, cu, cv, k, .. } => Self::Fisheye {
+                fx,
+                fy: fx * sy,
+                cu,
+                cv,
+                k,
+            },
+            pinhole => pinhole,
+        }
     }
 
     /// A pinhole whose horizontal field of view `hfov_deg` spans `width` pixels.
@@ -65,9 +90,11 @@ impl Lens {
         }
     }
 
-    fn centre(&self) -> (f64, f64, f64) {
+    /// `(fx, fy, cu, cv)`.
+    fn intrinsics(&self) -> (f64, f64, f64, f64) {
         match *self {
-            Self::Pinhole { f, cu, cv } | Self::Fisheye { f, cu, cv, .. } => (f, cu, cv),
+            Self::Pinhole { f, cu, cv } => (f, f, cu, cv),
+            Self::Fisheye { fx, fy, cu, cv, .. } => (fx, fy, cu, cv),
         }
     }
 
@@ -95,7 +122,7 @@ impl Lens {
     /// The pixel a camera-frame ray (any length) lands on; `None` behind a pinhole, or
     /// beyond where the fisheye polynomial stops increasing.
     pub fn project(&self, ray: Vector3<f64>) -> Option<(f64, f64)> {
-        let (f, cu, cv) = self.centre();
+        let (fx, fy, cu, cv) = self.intrinsics();
         let rxy = ray.x.hypot(ray.y);
         let theta = rxy.atan2(ray.z);
         if let Self::Pinhole { .. } = self
@@ -109,14 +136,14 @@ impl Lens {
         if rxy == 0.0 {
             return Some((cu, cv));
         }
-        let r = f * self.radial(theta);
-        Some((cu + r * ray.x / rxy, cv + r * ray.y / rxy))
+        let r = self.radial(theta) / rxy;
+        Some((cu + fx * r * ray.x, cv + fy * r * ray.y))
     }
 
     /// The unit camera-frame ray through pixel `(u, v)`; `None` where no ray maps there.
     pub fn unproject(&self, u: f64, v: f64) -> Option<Vector3<f64>> {
-        let (f, cu, cv) = self.centre();
-        let (x, y) = ((u - cu) / f, (v - cv) / f);
+        let (fx, fy, cu, cv) = self.intrinsics();
+        let (x, y) = ((u - cu) / fx, (v - cv) / fy);
         let rd = x.hypot(y);
         if rd == 0.0 {
             return Some(Vector3::new(0.0, 0.0, 1.0));
@@ -161,7 +188,8 @@ mod tests {
     /// Fisheye coefficients of the magnitude OpenCV calibrations give wide lenses.
     fn calibrated() -> Lens {
         Lens::Fisheye {
-            f: 110.0,
+            fx: 110.0,
+            fy: 110.0,
             cu: 112.0,
             cv: 112.0,
             k: [-0.03, 0.01, -0.004, 0.0005],
@@ -174,6 +202,7 @@ mod tests {
             Lens::pinhole(120.0, 224.0, 224.0),
             Lens::equidistant(160.0, 224.0 * 2f64.sqrt(), 112.0, 112.0),
             calibrated(),
+            calibrated().with_v_scale(816.0 / 616.0),
         ] {
             let mut worst = 0.0f64;
             for j in 0..=28 {

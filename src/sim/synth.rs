@@ -107,7 +107,8 @@ enum Projection {
     Pinhole,
     /// `to_recorded` gives the ray; project it with OpenCV's fisheye model.
     Fisheye {
-        f: f32,
+        fx: f32,
+        fy: f32,
         cu: f32,
         cv: f32,
         k: [f32; 4],
@@ -153,7 +154,7 @@ fn fisheye_pixel(
     x: f32,
     y: f32,
     z: f32,
-    f: f32,
+    (fx, fy): (f32, f32),
     cu: f32,
     cv: f32,
     k: &[f32; 4],
@@ -168,8 +169,8 @@ fn fisheye_pixel(
     let theta = atan_nonnegative(rxy / z);
     let t2 = theta * theta;
     let theta_d = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))));
-    let scale = f * theta_d / rxy;
-    Some((cu + scale * x, cv + scale * y))
+    let scale = theta_d / rxy;
+    Some((cu + fx * scale * x, cv + fy * scale * y))
 }
 
 impl Synthesizer {
@@ -218,8 +219,9 @@ impl Synthesizer {
         let ground_pixels = ground.iter().filter(|g| g.is_some()).count();
         let projection = match camera.lens() {
             Lens::Pinhole { .. } => Projection::Pinhole,
-            Lens::Fisheye { f, cu, cv, k } => Projection::Fisheye {
-                f: f as f32,
+            Lens::Fisheye { fx, fy, cu, cv, k } => Projection::Fisheye {
+                fx: fx as f32,
+                fy: fy as f32,
                 cu: cu as f32,
                 cv: cv as f32,
                 k: k.map(|x| x as f32),
@@ -323,9 +325,9 @@ impl Synthesizer {
         let m = self.to_recorded[index] * to_world;
         let inside = match self.projection {
             Projection::Pinhole => self.remap(&m, src, w, h, out, false, pinhole_pixel),
-            Projection::Fisheye { f, cu, cv, k } => {
+            Projection::Fisheye { fx, fy, cu, cv, k } => {
                 self.remap(&m, src, w, h, out, w >= HALVE_FROM_WIDTH, |x, y, z| {
-                    fisheye_pixel(x, y, z, f, cu, cv, &k)
+                    fisheye_pixel(x, y, z, (fx, fy), cu, cv, &k)
                 })
             }
         };
