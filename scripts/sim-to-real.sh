@@ -16,7 +16,9 @@
 #   scattered:  as matched, but collected the way JetBot's notebook does rather than by
 #               driving: the robot put down at random poses on the road or up to 5 cm
 #               beside it, within 40 degrees of its heading (`sim --scatter`).
-# VARIANTS="matched scattered" runs some of them only.
+# VARIANTS="matched scattered" runs some of them only; TRACK (default
+# config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched and
+# scattered's road and target.
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
 # time; the mean-label baseline from the earlier 80 %). Writes OUT/<name>/score/.
 set -euo pipefail
@@ -25,6 +27,8 @@ cd "$(dirname "$0")/.."
 REAL=${1:-}
 OUT=${2:-.cache/sim-to-real}
 EPOCHS=${EPOCHS:-20}
+TRACK=${TRACK:-config/tracks/narrow_print.toml}
+LOOKAHEAD=${LOOKAHEAD:-0.135}
 if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   echo "usage: scripts/sim-to-real.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
   echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat); '${REAL}' is not one" >&2
@@ -66,7 +70,7 @@ run() {
     | tee "$d/score.txt"
 }
 
-sed 's/^lookahead_m = .*/lookahead_m = 0.135/' "$CFG" > "$OUT/matched.toml"
+sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
 if wanted plain; then
   echo "== plain: pinhole camera, plain appearance"
   run plain drive
@@ -78,10 +82,10 @@ fi
 if wanted matched; then
   echo "== matched: as randomised, narrow road, recovery swerves, targets as near as people click"
   SIM_CFG="$OUT/matched.toml" run matched drive --camera jetbot --randomise \
-    --track config/tracks/narrow_print.toml --swerve-every 2
+    --track "$TRACK" --swerve-every 2
 fi
 if wanted scattered; then
   echo "== scattered: as matched, from random poses on and beside the road (JetBot's notebook)"
   SIM_CFG="$OUT/matched.toml" run scattered scatter --camera jetbot --randomise \
-    --track config/tracks/narrow_print.toml
+    --track "$TRACK"
 fi
