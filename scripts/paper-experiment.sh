@@ -14,7 +14,8 @@
 # Environment overrides, for a reduced run: SEEDS, BUDGET_MIN, IL_EPOCHS, BUDGETS (the
 # report's budgets, a TOML list of minutes), EVAL_S, EVAL_EVERY, METHODS (a subset of
 # "il ilddpg ddpg"), TRACK_FILTER (a grep -E pattern on the track names), ILDDPG_FLAGS,
-# CFG (the sim config), BIN (a built jetpilot: no build, so a long run is not disturbed by
+# CFG (the sim config), CAMERA (default pinhole: the 120-degree pinhole README's results
+# used; jetbot for JetBot's fisheye, the config's default), BIN (a built jetpilot: no build, so a long run is not disturbed by
 # rebuilding the checkout it runs from).
 #
 # The demonstrations are recorded once, on the default track (the JetBot mat driven
@@ -31,6 +32,7 @@ if [ "${1:-}" = "--quick" ]; then
 fi
 OUT=${1:-.cache/experiment}
 CFG=${CFG:-config/sim.toml}
+CAM=(--camera "${CAMERA:-pinhole}")
 if [ "$QUICK" = 1 ]; then
   SEEDS=${SEEDS:-1}
   BUDGET_MIN=${BUDGET_MIN:-6}
@@ -83,7 +85,7 @@ now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 
 # 331 frames over about 1.2 laps of the default track, with recoveries (as scripts/train-e2e.sh).
-$B sim --config "$CFG" --expert --seconds 60 --swerve-every 3 --record-every 3 \
+$B sim --config "$CFG" "${CAM[@]}" --expert --seconds 60 --swerve-every 3 --record-every 3 \
   --record-frames 331 --record "$OUT/demos" > "$OUT/demos.log"
 
 for seed in $SEEDS; do
@@ -102,7 +104,7 @@ for seed in $SEEDS; do
     read -r -a road <<< "${entry#*|}"
     slug=$(echo "$name" | tr -c 'a-zA-Z0-9\n' '_')
     if runs il; then
-      $B eval --config "$CFG" --model "$OUT/il_$seed/best.onnx" "${road[@]}" --seconds "$EVAL_S" \
+      $B eval --config "$CFG" --model "$OUT/il_$seed/best.onnx" "${road[@]}" "${CAM[@]}" --seconds "$EVAL_S" \
         --json "$OUT/il_${seed}_$slug.json" > /dev/null
       printf '\n[[run]]\nmethod = "IL"\nseed = %s\ntrack = "%s"\noffset_s = %s\neval_json = "%s"\n' \
         "$seed" "$name" "$il_s" "il_${seed}_$slug.json" >> "$M"
@@ -110,7 +112,7 @@ for seed in $SEEDS; do
 
     if runs ilddpg; then
       # shellcheck disable=SC2086
-      $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --init "$OUT/il_$seed/best.onnx" \
+      $B train ddpg --sim "$CFG" "${road[@]}" "${CAM[@]}" --seed "$seed" --init "$OUT/il_$seed/best.onnx" \
         --demos "$OUT/demos" --minutes "$left_min" $ILDDPG_FLAGS \
         --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
         --out "$OUT/ilddpg_${seed}_$slug" > "$OUT/ilddpg_${seed}_$slug.log" 2>&1
@@ -119,7 +121,7 @@ for seed in $SEEDS; do
     fi
 
     if runs ddpg; then
-      $B train ddpg --sim "$CFG" "${road[@]}" --seed "$seed" --minutes "$BUDGET_MIN" \
+      $B train ddpg --sim "$CFG" "${road[@]}" "${CAM[@]}" --seed "$seed" --minutes "$BUDGET_MIN" \
         --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
         --out "$OUT/ddpg_${seed}_$slug" > "$OUT/ddpg_${seed}_$slug.log" 2>&1
       printf '\n[[run]]\nmethod = "DDPG"\nseed = %s\ntrack = "%s"\noffset_s = 0\nevals_csv = "%s"\n' \

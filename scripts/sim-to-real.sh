@@ -6,7 +6,8 @@
 #
 # Four policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
 # 20), differing only in what the simulator showed them:
-#   plain:      the default pinhole camera, plain appearance (the starting point);
+#   plain:      --camera pinhole (the simulator's first camera), plain appearance (the
+#               starting point);
 #   randomised: --camera jetbot (the fitted fisheye) and --randomise (camera looks, road
 #               paints, floors, backdrops) on the default mat;
 #   matched:    as randomised, on config/tracks/narrow_print.toml (a road as narrow as the
@@ -73,7 +74,7 @@ run() {
 sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
 if wanted plain; then
   echo "== plain: pinhole camera, plain appearance"
-  run plain drive
+  run plain drive --camera pinhole
 fi
 if wanted randomised; then
   echo "== randomised: JetBot's fisheye, randomised looks and scenes"

@@ -6,6 +6,8 @@
 #   scripts/train-e2e.sh [OUT]              (default OUT: .cache/e2e)
 #   SCRATCH=1 scripts/train-e2e.sh OUT      DDPG from scratch (random actor, no
 #                                           demonstrations) for the whole budget
+# CAMERA (default pinhole: the 120-degree pinhole README's numbers used; jetbot for JetBot's
+# fisheye, the config's default) picks the simulated camera.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-build-deps.sh
@@ -16,21 +18,22 @@ B=target/release/jetpilot
 OUT=${1:-.cache/e2e}
 MINUTES=${TRAIN_MINUTES:-30}
 CFG=config/sim.toml
+CAM=(--camera "${CAMERA:-pinhole}")
 rm -rf "$OUT"
 mkdir -p "$OUT"
 start=$(date +%s)
 if [ "${SCRATCH:-0}" = 1 ]; then
-  $B train ddpg --sim "$CFG" --out "$OUT/ddpg" --minutes "$MINUTES"
+  $B train ddpg --sim "$CFG" "${CAM[@]}" --out "$OUT/ddpg" --minutes "$MINUTES"
 else
   # 331 frames over about 1.2 laps (every 3rd control step, 10 per second), recording
   # paused during the expert's swerves so the frames include recoveries.
-  $B sim --config "$CFG" --expert --seconds 60 --swerve-every 3 --record-every 3 \
+  $B sim --config "$CFG" "${CAM[@]}" --expert --seconds 60 --swerve-every 3 --record-every 3 \
     --record-frames 331 --record "$OUT/demos"
   $B train il --config "$CFG" --input-size 96 --head speed-steering \
     --data "$OUT/demos" --out "$OUT/il"
   left=$(awk -v m="$MINUTES" -v s="$(( $(date +%s) - start ))" 'BEGIN { printf "%.2f", m - s / 60 }')
-  $B train ddpg --sim "$CFG" --init "$OUT/il/best.onnx" --demos "$OUT/demos" \
+  $B train ddpg --sim "$CFG" "${CAM[@]}" --init "$OUT/il/best.onnx" --demos "$OUT/demos" \
     --out "$OUT/ddpg" --minutes "$left"
 fi
 echo "wall time: $(( $(date +%s) - start )) s"
-$B eval --config "$CFG" --model "$OUT/ddpg/best.onnx" --json "$OUT/eval.json" --png "$OUT/trace.png"
+$B eval --config "$CFG" "${CAM[@]}" --model "$OUT/ddpg/best.onnx" --json "$OUT/eval.json" --png "$OUT/trace.png"

@@ -6,8 +6,8 @@
 #
 #   scripts/unseen-tracks.sh MODEL [OUT]   (e.g. .cache/s2r/randomised/il/best.onnx)
 #
-# SECONDS_PER_TEST=600 (default) sets the test length; CAMERA=jetbot (default) the camera
-# (CAMERA= for the config's pinhole). Writes OUT/<track>[_rev].{json,png} and prints one
+# SECONDS_PER_TEST=600 (default) sets the test length; CAMERA=jetbot (default) or pinhole
+# the camera (CAMERA= for the config's). Writes OUT/<track>[_rev].{json,png} and prints one
 # table row per test. BIN=target/release/jetpilot skips the build.
 set -euo pipefail
 cd "$(dirname "$0")/.."

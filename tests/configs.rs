@@ -87,3 +87,11 @@ fn shipped_tracks_load_both_ways_round() {
         ]
     );
 }
+
+#[test]
+fn the_sim_config_sees_through_jetbots_camera() {
+    // The shipped simulator config spells out the default camera: JetBot's fisheye.
+    let cam = load("sim.toml").sim.camera;
+    assert_eq!(cam, jetpilot::sim::camera::CameraModel::jetbot(224, 224));
+    assert_eq!(cam, jetpilot::sim::camera::CameraModel::default());
+}

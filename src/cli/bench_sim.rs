@@ -1,7 +1,8 @@
 //! `jetpilot bench --sim`: the simulator's frame costs on one thread (it runs beside the
 //! model, which gets the other core): rendering the mat and replayed-frame synthesis at
-//! 224x224 and 96x96, through the config's default pinhole and through JetBot's fisheye
-//! (`CameraModel::jetbot`), and repainting the mat for a randomised scene.
+//! 224x224 and 96x96, through the 120-degree pinhole (`CameraModel::pinhole`) and through
+//! JetBot's fisheye (`CameraModel::jetbot`, the default), and repainting the mat for a
+//! randomised scene.
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -44,11 +45,10 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
     ];
     for (lens, size) in cases {
         let mut cfg = Config::default();
-        cfg.sim.camera.width = size;
-        cfg.sim.camera.height = size;
-        if lens == "fisheye" {
-            cfg.sim.camera = CameraModel::jetbot(size, size);
-        }
+        cfg.sim.camera = match lens {
+            "fisheye" => CameraModel::jetbot(size, size),
+            _ => CameraModel::pinhole(size, size),
+        };
         cfg.sim.frames = FrameMode::Replay;
         let texture = MatTexture::new(
             &track.paint(),

@@ -29,7 +29,9 @@ pub struct WorldArgs {
     pub reverse: bool,
     /// Camera instead of the config's `[sim.camera]`: `jetbot` is JetBot's 160-degree
     /// IMX219 fisheye at the mount fitted to real JetBot frames (README, "JetBot's camera,
-    /// fitted so far"); the config's image size is kept.
+    /// fitted so far"; the default), `pinhole` the simulator's first camera (120-degree
+    /// pinhole tilted 25 degrees, which README's pinhole results used); the config's image
+    /// size is kept.
     #[arg(long, value_enum, value_name = "NAME")]
     pub camera: Option<CameraPreset>,
     /// Randomise the camera's look (`[sim.appearance]`: white balance with JetBot's pink
@@ -44,6 +46,8 @@ pub struct WorldArgs {
 pub enum CameraPreset {
     /// JetBot's camera: `CameraModel::jetbot`.
     Jetbot,
+    /// A 120-degree pinhole tilted 25 degrees: `CameraModel::pinhole`.
+    Pinhole,
 }
 
 impl WorldArgs {
@@ -57,9 +61,11 @@ impl WorldArgs {
         if self.randomise {
             cfg.sim.appearance.enabled = true;
         }
-        if let Some(CameraPreset::Jetbot) = self.camera {
-            let c = &mut cfg.sim.camera;
-            *c = CameraModel::jetbot(c.width, c.height);
+        let c = &mut cfg.sim.camera;
+        match self.camera {
+            Some(CameraPreset::Jetbot) => *c = CameraModel::jetbot(c.width, c.height),
+            Some(CameraPreset::Pinhole) => *c = CameraModel::pinhole(c.width, c.height),
+            None => {}
         }
     }
 }

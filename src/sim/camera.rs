@@ -71,19 +71,9 @@ pub struct CameraModel {
 }
 
 impl Default for CameraModel {
+    /// JetBot's camera at 224x224: [`CameraModel::jetbot`].
     fn default() -> Self {
-        Self {
-            width: 224,
-            height: 224,
-            lens: LensKind::Pinhole,
-            hfov_deg: 120.0,
-            fisheye_fov_deg: 160.0,
-            fisheye_k: [0.0; 4],
-            capture_aspect: None,
-            height_m: 0.10,
-            tilt_deg: 25.0,
-            forward_m: 0.05,
-        }
+        Self::jetbot(224, 224)
     }
 }
 
@@ -118,13 +108,27 @@ impl CameraModel {
             width,
             height,
             lens: LensKind::Fisheye,
+            hfov_deg: 120.0,
             fisheye_fov_deg: 160.0,
             fisheye_k: [0.0; 4],
             capture_aspect: Some(JETBOT_CAPTURE_ASPECT),
             height_m: 0.10,
             tilt_deg: JETBOT_TILT_DEG,
             forward_m: 0.05,
-            ..Self::default()
+        }
+    }
+
+    /// The simulator's first camera, before it was fitted to JetBot's: a 120 degree
+    /// (horizontal) pinhole, 10 cm up, 5 cm ahead of the axle, tilted down 25 degrees.
+    /// Straight lines stay straight and the ground maps to the image by a homography;
+    /// README's pinhole results (the paper's experiment, `train-e2e.sh`) use it
+    /// (`--camera pinhole`).
+    pub fn pinhole(width: u32, height: u32) -> Self {
+        Self {
+            lens: LensKind::Pinhole,
+            capture_aspect: None,
+            tilt_deg: 25.0,
+            ..Self::jetbot(width, height)
         }
     }
 
@@ -391,7 +395,7 @@ mod tests {
 
     #[test]
     fn round_trip_pixel_ground_pixel() {
-        let cam = CameraModel::default();
+        let cam = CameraModel::pinhole(224, 224);
         cam.validate().unwrap();
         let hv = cam.horizon_v();
         let poses = [
@@ -427,7 +431,7 @@ mod tests {
 
     #[test]
     fn homography_inverse_is_inverse() {
-        let cam = CameraModel::default();
+        let cam = CameraModel::pinhole(224, 224);
         let pose = Pose2::new(0.4, 1.7, 2.0);
         let h = cam.ground_homography(&pose);
         let hi = cam.ground_homography_inverse(&pose);
@@ -446,7 +450,7 @@ mod tests {
 
     #[test]
     fn centre_column_looks_straight_ahead() {
-        let cam = CameraModel::default();
+        let cam = CameraModel::pinhole(224, 224);
         let (cu, _) = cam.principal_point();
         let pose = Pose2::new(1.0, 1.0, 0.7);
         let (s, c) = pose.heading.sin_cos();
@@ -465,7 +469,7 @@ mod tests {
 
     #[test]
     fn ground_ahead_projects_below_the_centre_and_horizon() {
-        let cam = CameraModel::default();
+        let cam = CameraModel::pinhole(224, 224);
         let pose = Pose2::new(0.5, 0.5, std::f32::consts::FRAC_PI_2);
         let (cu, cv) = cam.principal_point();
         let hv = cam.horizon_v();
@@ -552,24 +556,26 @@ mod tests {
     fn validate_rejects_nonsense() {
         let cam = CameraModel {
             height_m: 0.0,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         assert!(cam.validate().is_err());
         let cam = CameraModel {
             hfov_deg: 180.0,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         assert!(cam.validate().is_err());
+        // Keys left out are JetBot's camera.
         let cam: CameraModel = serde_json::from_str(r#"{"width": 96, "height": 96}"#).unwrap();
-        assert_eq!(cam.width, 96);
-        assert_eq!(cam.tilt_deg, 25.0);
+        assert_eq!(cam, CameraModel::jetbot(96, 96));
+        assert_eq!(cam.lens, LensKind::Fisheye);
+        assert_eq!(cam.tilt_deg, JETBOT_TILT_DEG);
         assert!(serde_json::from_str::<CameraModel>(r#"{"fov": 3}"#).is_err());
     }
 
     fn jetbot_fisheye() -> CameraModel {
         CameraModel {
             lens: LensKind::Fisheye,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         }
     }
 
@@ -593,12 +599,12 @@ mod tests {
             }
         }
         assert!(checked > 3000, "only {checked} pixels checked");
-        assert!(!cam.has_homography() && CameraModel::default().has_homography());
+        assert!(!cam.has_homography() && CameraModel::pinhole(224, 224).has_homography());
     }
 
     #[test]
     fn the_fisheye_sees_more_ground_and_bends_its_horizon() {
-        let (pin, fish) = (CameraModel::default(), jetbot_fisheye());
+        let (pin, fish) = (CameraModel::pinhole(224, 224), jetbot_fisheye());
         // 160 degrees over the 316.8 px diagonal: f = 113.44 px; the level ray is 25
         // degrees (0.4363 rad) above the axis: 112 - 113.44 * 0.4363 = 62.50.
         assert!(

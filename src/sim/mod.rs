@@ -1,7 +1,7 @@
 //! The replayed-frame simulator: a JetBot mat track, differential-drive robot physics, a
-//! virtual PCA9685 that the daemon's own motor driver writes to, a pinhole camera that
-//! renders the mat or re-projects recorded frames to new poses, the paper's reward, and
-//! intervention accounting.
+//! virtual PCA9685 that the daemon's own motor driver writes to, a camera (JetBot's fisheye
+//! by default, or a pinhole) that renders the mat or re-projects recorded frames to new
+//! poses, the paper's reward, and intervention accounting.
 //!
 //! ```text
 //! track (geometry, queries) --paint--> render (mat texture, camera view at a pose)

@@ -980,7 +980,7 @@ mod tests {
         let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
         let camera = CameraModel {
             lens: LensKind::Fisheye,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         let r = Renderer::new(tex, camera).unwrap();
         let (w, h) = (camera.width, camera.height);
@@ -1003,7 +1003,7 @@ mod tests {
         // The right edge line's inner side (x = 1.03) is drawn where the fisheye projects
         // it, 0.2, 0.5 and 1.2 m ahead, where a pinhole would put it elsewhere.
         let yellow = |p: [u8; 3]| p[0] > 150 && p[1] > 130 && p[2] < 120;
-        let pinhole = CameraModel::default();
+        let pinhole = CameraModel::pinhole(224, 224);
         for d in [0.2f32, 0.5, 1.2] {
             let (u, v) = camera.ground_to_pixel(&pose, 1.03, pose.y + d).unwrap();
             let found = (w / 2..w)
@@ -1024,7 +1024,7 @@ mod tests {
     #[test]
     fn camera_view_of_a_straight_road() {
         let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
-        let camera = CameraModel::default();
+        let camera = CameraModel::pinhole(224, 224);
         let r = Renderer::new(tex, camera).unwrap();
         let (w, h) = (camera.width, camera.height);
         let mut frame = vec![0u8; r.frame_len()];

@@ -307,15 +307,12 @@ mod tests {
 
     #[test]
     fn backdrop_worked_numbers_wall_gradient_and_a_block() {
-        // Pinhole 8x8 with the horizon at row 4 needs a camera; use the default's size and
+        // Pinhole 8x8 with the horizon at row 4 needs a camera; use the 224 pinhole and
         // read its horizon instead of assuming one.
-        let camera = CameraModel::default();
+        let camera = CameraModel::pinhole(224, 224);
         let (w, h) = (camera.width as usize, camera.height as usize);
         let horizon = camera.horizon_v();
-        assert!(
-            horizon > 2.0,
-            "the default camera sees a wall above row {horizon}"
-        );
+        assert!(horizon > 2.0, "the pinhole sees a wall above row {horizon}");
         let scene = Scene {
             wall_rgb: [200, 100, 0],
             blocks: vec![Block {

@@ -611,11 +611,11 @@ mod tests {
     #[test]
     fn synthesis_matches_direct_render_after_a_side_step_and_turn() {
         let a = Pose2::new(0.9, 0.5, FRAC_PI_2);
-        let (p224, cov224) = check_reprojection(CameraModel::default(), a, 0.03, 5.0);
+        let (p224, cov224) = check_reprojection(CameraModel::pinhole(224, 224), a, 0.03, 5.0);
         let cam96 = CameraModel {
             width: 96,
             height: 96,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         let (p96, cov96) = check_reprojection(cam96, a, 0.03, 5.0);
         // In the curve, the other way.
@@ -624,7 +624,7 @@ mod tests {
             1.4 + 0.5 * 0.6f32.sin(),
             0.6 + FRAC_PI_2,
         );
-        let (pcurve, covcurve) = check_reprojection(CameraModel::default(), c, -0.03, -5.0);
+        let (pcurve, covcurve) = check_reprojection(CameraModel::pinhole(224, 224), c, -0.03, -5.0);
         println!(
             "reprojection PSNR: 224x224 {p224:.2} dB (coverage {cov224:.3}), 96x96 {p96:.2} dB \
              (coverage {cov96:.3}), curve 224x224 {pcurve:.2} dB (coverage {covcurve:.3})"
@@ -660,7 +660,7 @@ mod tests {
             width: size,
             height: size,
             lens: crate::sim::camera::LensKind::Fisheye,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         }
     }
 
@@ -715,7 +715,7 @@ mod tests {
 
     #[test]
     fn synthesis_at_the_recorded_pose_reproduces_the_frame() {
-        let camera = CameraModel::default();
+        let camera = CameraModel::pinhole(224, 224);
         let r = renderer(camera);
         let a = Pose2::new(0.9, 0.6, FRAC_PI_2 + 0.05);
         let f = frame(&r, a);
@@ -745,7 +745,7 @@ mod tests {
         let camera = CameraModel {
             width: 32,
             height: 32,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         let r = renderer(camera);
         let a = Pose2::new(0.9, 0.6, FRAC_PI_2);
@@ -790,7 +790,7 @@ mod tests {
         let camera = CameraModel {
             width: 16,
             height: 16,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         let blank = |pose| RecordedFrame {
             pose,
@@ -828,7 +828,7 @@ mod tests {
         let camera = CameraModel {
             width: 8,
             height: 8,
-            ..CameraModel::default()
+            ..CameraModel::pinhole(224, 224)
         };
         assert!(
             Synthesizer::new(
@@ -918,7 +918,7 @@ mod tests {
                 width: size,
                 height: size,
                 lens,
-                ..CameraModel::default()
+                ..CameraModel::pinhole(224, 224)
             };
             let r = renderer(camera);
             let a = Pose2::new(0.9, 0.5, FRAC_PI_2);
