@@ -4,7 +4,7 @@
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)
 #
-# Four policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
+# Five policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
 # 20), differing only in what the simulator showed them:
 #   plain:      --camera pinhole (the simulator's first camera), plain appearance (the
 #               starting point);
@@ -17,6 +17,9 @@
 #   scattered:  as matched, but collected the way JetBot's notebook does rather than by
 #               driving: the robot put down at random poses on the road or up to 5 cm
 #               beside it, within 40 degrees of its heading (`sim --scatter`).
+#   layouts:    as randomised, on random track layouts (`--random-layouts`: 5 to 8
+#               corners as tight as the mat's, lanes 0.09-0.20 m, either way round), a
+#               new one every 4 simulated seconds.
 # VARIANTS="matched scattered" runs some of them only; TRACK (default
 # config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched and
 # scattered's road and target.
@@ -48,7 +51,7 @@ fi
 CFG=config/sim.toml
 mkdir -p "$OUT"
 
-VARIANTS=${VARIANTS:-plain randomised matched scattered}
+VARIANTS=${VARIANTS:-plain randomised matched scattered layouts}
 wanted() { [[ " $VARIANTS " == *" $1 "* ]]; }
 
 # run NAME drive|scatter SIM_ARGS...
@@ -72,6 +75,7 @@ run() {
 }
 
 sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
+sed "s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
 if wanted plain; then
   echo "== plain: pinhole camera, plain appearance"
   run plain drive --camera pinhole
@@ -89,4 +93,8 @@ if wanted scattered; then
   echo "== scattered: as matched, from random poses on and beside the road (JetBot's notebook)"
   SIM_CFG="$OUT/matched.toml" run scattered scatter --camera jetbot --randomise \
     --track "$TRACK"
+fi
+if wanted layouts; then
+  echo "== layouts: as randomised, on random track layouts"
+  SIM_CFG="$OUT/layouts.toml" run layouts drive --camera jetbot --randomise --random-layouts
 fi

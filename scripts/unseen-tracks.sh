@@ -8,7 +8,8 @@
 #
 # SECONDS_PER_TEST=600 (default) sets the test length; CAMERA=jetbot (default) or pinhole
 # the camera (CAMERA= for the config's). Writes OUT/<track>[_rev].{json,png} and prints one
-# table row per test. BIN=target/release/jetpilot skips the build.
+# table row per test. BIN=target/release/jetpilot skips the build. ONLY (a grep -E pattern on
+# <track>[_rev], e.g. 'narrow.*_rev') runs some tests only.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -48,6 +49,7 @@ for track in config/tracks/*.toml; do
       rev=(--reverse)
       tag=${name}_rev
     fi
+    grep -qE "${ONLY:-.}" <<< "$tag" || continue
     "$B" -q eval --config config/sim.toml --model "$MODEL" --track "$track" "${rev[@]}" \
       "${CAM[@]}" --seconds "$TEST_S" --json "$OUT/$tag.json" --png "$OUT/$tag.png" > "$OUT/$tag.txt"
     python3 - "$OUT/$tag.json" "$name" "$dir" <<'EOF'

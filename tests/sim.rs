@@ -637,3 +637,60 @@ fn scattered_samples_are_labelled_jetbot_files_that_repeat_for_a_seed() {
         "{stderr}"
     );
 }
+
+#[test]
+fn random_layouts_change_the_road_keep_the_expert_on_it_and_repeat_for_a_seed() {
+    // A new layout every 8 s: about five in 40 s, each with the expert on its lane.
+    let run = |seed: u64| {
+        let cfg = small_config(&format!(
+            "[sim]\nseed = {seed}\n[sim.layouts]\nenabled = true\nevery_s = 8.0\n"
+        ));
+        let mut rig = setup::build(&cfg).unwrap();
+        let mut pilot = Pilot::expert(cfg.sim.expert, 0);
+        let mut tracks = vec![rig.world.track.clone()];
+        let mut min_edge = f32::MAX;
+        closed_loop::run(
+            &mut rig.world,
+            &mut rig.motors,
+            &mut pilot,
+            &cfg.sim.loop_settings(40.0, &cfg),
+            (48, 48),
+            |s| min_edge = min_edge.min(s.score.edge_distance_m),
+        )
+        .unwrap();
+        tracks.push(rig.world.track.clone());
+        let mut frame = vec![0u8; 48 * 48 * 3];
+        rig.world.observe(&mut frame);
+        (rig.world.stats.clone(), tracks, frame, min_edge)
+    };
+    let (stats, tracks, frame, min_edge) = run(3);
+    assert_eq!(stats.interventions, 0, "{stats:?}");
+    assert!(min_edge > 0.0, "stayed in its lane: closest {min_edge} m");
+    // The road is not the mat's, and it changed during the run.
+    let mat = jetpilot::sim::track::Track::jetbot_mat();
+    assert_ne!(tracks[0], mat);
+    assert_ne!(tracks[0], tracks[1]);
+    let again = run(3);
+    assert_eq!(again.1, tracks);
+    assert_eq!(again.2, frame, "same seed, same frame");
+    assert_ne!(run(4).1, tracks, "the seed matters");
+
+    // Replayed frames were recorded on one road: layouts need rendered frames.
+    let cfg = small_config("[sim]\nframes = \"replay\"\n[sim.layouts]\nenabled = true\n");
+    let e = setup::build(&cfg)
+        .err()
+        .expect("replay with layouts is refused");
+    assert!(e.to_string().contains("[sim.layouts]"), "{e}");
+}
+
+#[test]
+fn each_training_episode_gets_a_new_layout() {
+    let cfg = small_config("[sim.layouts]\nenabled = true\nevery_s = 0.0\n");
+    let mut env = jetpilot::sim::env::Env::new(&cfg, 100).unwrap();
+    env.reset(None).unwrap();
+    let first = env.world().track.clone();
+    let obs = env.observation().to_vec();
+    env.reset(None).unwrap();
+    assert_ne!(env.world().track, first);
+    assert_ne!(env.observation(), &obs[..]);
+}

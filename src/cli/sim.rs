@@ -39,6 +39,12 @@ pub struct WorldArgs {
     /// data (`sim --record`) and `train ddpg`. Off by default, so `eval` stays as it was.
     #[arg(long)]
     pub randomise: bool,
+    /// Drive random track layouts (`[sim.layouts]`: closed roads of lines and arcs, 4 to 7
+    /// corners as tight as the mat's, lanes 0.09-0.20 m, either way round), seeded by
+    /// `sim.seed`: a new one every `every_s` simulated seconds and at each `train ddpg`
+    /// episode (its tests stay on the track). Rendered frames only.
+    #[arg(long)]
+    pub random_layouts: bool,
 }
 
 /// Cameras `--camera` can name.
@@ -60,6 +66,9 @@ impl WorldArgs {
         }
         if self.randomise {
             cfg.sim.appearance.enabled = true;
+        }
+        if self.random_layouts {
+            cfg.sim.layouts.enabled = true;
         }
         let c = &mut cfg.sim.camera;
         match self.camera {

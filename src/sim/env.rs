@@ -60,8 +60,11 @@ impl Env {
     }
 
     /// Starts an episode at a random place on the lane (or `at`, metres along the track),
-    /// motors stopped; returns the first observation.
+    /// motors stopped, on a new random layout when `[sim.layouts]` is on; returns the first
+    /// observation.
     pub fn reset(&mut self, at: Option<f32>) -> Result<&[u8], SimError> {
+        // With `[sim.layouts]` on, every episode is on a new road.
+        self.rig.world.new_layout();
         let s = at.unwrap_or_else(|| self.rng.random_range(0.0..self.rig.world.track.length()));
         self.rig
             .motors

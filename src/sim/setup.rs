@@ -64,6 +64,8 @@ pub struct SimConfig {
     pub stall: super::world::StallRule,
     /// Camera-side appearance randomisation (off by default).
     pub appearance: super::appearance::AppearanceConfig,
+    /// Random track layouts (off by default; rendered frames only).
+    pub layouts: super::layout::LayoutConfig,
 }
 
 impl Default for SimConfig {
@@ -85,6 +87,7 @@ impl Default for SimConfig {
             expert: ExpertParams::default(),
             stall: super::world::StallRule::default(),
             appearance: super::appearance::AppearanceConfig::default(),
+            layouts: super::layout::LayoutConfig::default(),
         }
     }
 }
@@ -174,6 +177,16 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
     if cfg.sim.appearance.enabled {
         cfg.sim.appearance.validate()?;
         world.set_appearance(Some(Appearance::new(cfg.sim.appearance, cfg.sim.seed)));
+    }
+    if cfg.sim.layouts.enabled {
+        if cfg.sim.frames != FrameMode::Render {
+            return Err(SimError::Invalid(
+                "[sim.layouts] enabled needs sim.frames = \"render\": replayed frames were \
+                 recorded on one track"
+                    .into(),
+            ));
+        }
+        world.set_layouts(Some(cfg.sim.layouts), cfg.sim.seed)?;
     }
     Ok(SimRig {
         world,

@@ -10,6 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::appearance::Appearance;
+use super::layout::{LayoutConfig, random_track};
 use super::reward::{RewardParams, is_reward, reward};
 use super::robot::{Robot, RobotParams};
 use super::synth::Synthesizer;
@@ -75,6 +76,18 @@ pub struct World {
     appearance: Option<Appearance>,
     /// The appearance generation whose scene the renderer shows.
     painted: Option<u64>,
+    /// Random track layouts, when on (`[sim.layouts]`).
+    layouts: Option<Layouts>,
+    /// The track changed since the renderer's mat was painted.
+    track_changed: bool,
+}
+
+/// The layout generator's settings, its own random stream (so turning layouts on leaves
+/// the robot's noise as it was), and when the current layout was drawn.
+struct Layouts {
+    cfg: LayoutConfig,
+    rng: ChaCha8Rng,
+    drawn_at_s: f64,
 }
 
 /// A robot that makes no progress along the track (circling, stuck, or driving the wrong
@@ -129,6 +142,8 @@ impl World {
             stall_window: (0.0, 0.0),
             appearance: None,
             painted: None,
+            layouts: None,
+            track_changed: false,
         };
         w.reset_at(0.0);
         w
@@ -160,6 +175,53 @@ impl World {
     /// Randomises the camera's look from now on (`None`: plain frames).
     pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
         self.appearance = appearance;
+    }
+
+    /// Draws random track layouts from now on (`None`: keep the track), starting with one
+    /// now; the robot is put on its lane at the start.
+    pub fn set_layouts(
+        &mut self,
+        cfg: Option<LayoutConfig>,
+        seed: u64,
+    ) -> Result<(), super::SimError> {
+        self.layouts = match cfg {
+            Some(cfg) => {
+                cfg.validate()?;
+                Some(Layouts {
+                    cfg,
+                    // A stream of its own: "LAYOUT" in ASCII.
+                    rng: ChaCha8Rng::seed_from_u64(seed ^ 0x4c41_594f_5554),
+                    drawn_at_s: self.stats.time_s,
+                })
+            }
+            None => None,
+        };
+        if self.new_layout() {
+            self.reset_at(0.0);
+        }
+        Ok(())
+    }
+
+    /// A new random layout in place of the track, when layouts are on (the caller puts the
+    /// robot back on the lane); `false` when they are off.
+    pub fn new_layout(&mut self) -> bool {
+        let Some(l) = self.layouts.as_mut() else {
+            return false;
+        };
+        let (w, h) = self.track.mat_size();
+        l.drawn_at_s = self.stats.time_s;
+        match random_track(&l.cfg, (w as f64, h as f64), &mut l.rng) {
+            Ok(track) => {
+                self.track = track;
+                self.track_changed = true;
+                true
+            }
+            Err(e) => {
+                // Settings were validated; drive on the layout there is.
+                tracing::warn!("random layouts: {e}; keeping the current layout");
+                false
+            }
+        }
     }
 
     /// The appearance randomiser, when on.
@@ -203,21 +265,34 @@ impl World {
     /// Repaints the rendered mat and backdrop when the appearance has drawn a new scene.
     /// Replayed frames keep the scene they recorded.
     fn show_scene(&mut self) {
-        let (Some(a), FrameMaker::Render(r)) = (&self.appearance, &mut self.frames) else {
+        let FrameMaker::Render(r) = &mut self.frames else {
             return;
         };
-        let generation = a.generation();
-        if self.painted == Some(generation) {
+        let generation = self.appearance.as_ref().map(|a| a.generation());
+        let new_look = generation.is_some() && self.painted != generation;
+        if !new_look && !self.track_changed {
             return;
         }
-        self.painted = Some(generation);
-        let Some(scene) = a.scene() else { return };
-        let strokes = self.track.paint_with(&scene.paint);
-        let backdrop = scene.backdrop(r.camera());
-        if let Err(e) = r
-            .repaint(&strokes, scene.mat_rgb, scene.floor_rgb)
-            .and_then(|()| r.set_backdrop(Some(backdrop)))
-        {
+        self.painted = generation;
+        let scene = self.appearance.as_ref().and_then(|a| a.scene());
+        if scene.is_none() && !self.track_changed {
+            return;
+        }
+        self.track_changed = false;
+        let done = match scene {
+            Some(scene) => {
+                let strokes = self.track.paint_with(&scene.paint);
+                let backdrop = scene.backdrop(r.camera());
+                r.repaint(&strokes, scene.mat_rgb, scene.floor_rgb)
+                    .and_then(|()| r.set_backdrop(Some(backdrop)))
+            }
+            None => r.repaint(
+                &self.track.paint(),
+                super::scene::SIM_MAT_RGB,
+                super::scene::SIM_FLOOR_RGB,
+            ),
+        };
+        if let Err(e) = done {
             // Settings were validated; keep the previous scene rather than stop the run.
             tracing::warn!("scene randomisation: {e}; keeping the previous scene");
         }
@@ -233,6 +308,15 @@ impl World {
         let after = self.robot.pose;
         self.stats.distance_m += ((after.x - before.x).hypot(after.y - before.y)) as f64;
         self.stats.time_s += dt as f64;
+        let due = self.layouts.as_ref().is_some_and(|l| {
+            l.cfg.every_s > 0.0 && self.stats.time_s - l.drawn_at_s >= l.cfg.every_s as f64
+        });
+        if due && self.new_layout() {
+            // Somewhere on the new road, not an intervention: the hand moved the mat.
+            let s = rand::Rng::random_range(&mut self.rng, 0.0..self.track.length());
+            self.reset_at(s);
+            self.stall_window = (self.stats.time_s, self.stats.progress_m);
+        }
     }
 
     /// Reward, interventions and progress at the end of a control period.

@@ -23,13 +23,17 @@ pub struct EvalOutcome {
     pub wall_seconds: f64,
 }
 
-/// Drives `policy` for `seconds` simulated seconds on `cfg`'s track.
+/// Drives `policy` for `seconds` simulated seconds on `cfg`'s track (never a random layout).
 pub fn evaluate(
     cfg: &Config,
     policy: &mut dyn Policy,
     seconds: f64,
 ) -> Result<EvalOutcome, TrainError> {
     let sim_err = |e: String| TrainError::Backend(format!("simulator: {e}"));
+    // Tests are on the configured track, even where training draws random layouts.
+    let mut cfg = cfg.clone();
+    cfg.sim.layouts.enabled = false;
+    let cfg = &cfg;
     let mut rig = setup::build(cfg).map_err(|e| sim_err(e.to_string()))?;
     let params = DriveParams::from_config(cfg);
     let processor = FrameProcessor::new(
