@@ -39,7 +39,7 @@ pub struct WorldArgs {
     /// data (`sim --record`) and `train ddpg`. Off by default, so `eval` stays as it was.
     #[arg(long)]
     pub randomise: bool,
-    /// Drive random track layouts (`[sim.layouts]`: closed roads of lines and arcs, 4 to 7
+    /// Drive random track layouts (`[sim.layouts]`: closed roads of lines and arcs, 5 to 8
     /// corners as tight as the mat's, lanes 0.09-0.20 m, either way round), seeded by
     /// `sim.seed`: a new one every `every_s` simulated seconds and at each `train ddpg`
     /// episode (its tests stay on the track). Rendered frames only.

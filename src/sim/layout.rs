@@ -1,7 +1,7 @@
 //! Random track layouts (`[sim.layouts]`): closed roads of lines and arcs on the mat, the
 //! way JetBot owners tape their own, drawn from a seed.
 //!
-//! This module owns the generator and its settings. A layout is a rounded polygon: 4 to 7
+//! This module owns the generator and its settings. A layout is a rounded polygon: 5 to 8
 //! corners at jittered angles around the mat's centre, each at a random fraction of the
 //! largest ellipse that fits, so some corners turn the other way (S-bends); every corner is
 //! replaced by an arc tangent to both sides with a radius drawn from `corner_radius_m`, as
