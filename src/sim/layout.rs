@@ -199,7 +199,12 @@ fn fillet<R: Rng + ?Sized>(
         let (ox, oy, _) = side(i);
         let turn = (ix * oy - iy * ox).atan2(ix * ox + iy * oy);
         let deg = turn.to_degrees();
-        if deg.abs() > MAX_TURN_DEG || deg < -MAX_OUTSIDE_TURN_DEG || deg.abs() < 5.0 {
+        // (Two corners in one place give no direction: NaN.)
+        if !deg.is_finite()
+            || deg.abs() > MAX_TURN_DEG
+            || deg < -MAX_OUTSIDE_TURN_DEG
+            || deg.abs() < 5.0
+        {
             return None;
         }
         turns.push(turn);
