@@ -4,7 +4,7 @@
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)
 #
-# Five policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
+# Six policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
 # 20), differing only in what the simulator showed them:
 #   plain:      --camera pinhole (the simulator's first camera), plain appearance (the
 #               starting point);
@@ -19,7 +19,9 @@
 #               beside it, within 40 degrees of its heading (`sim --scatter`).
 #   layouts:    as randomised, on random track layouts (`--random-layouts`: 5 to 8
 #               corners as tight as the mat's, lanes 0.09-0.20 m, either way round), a
-#               new one every 4 simulated seconds.
+#               new one every 4 simulated seconds;
+#   matched_layouts: as matched (target LOOKAHEAD ahead, swerves), on random layouts
+#               with lanes 0.09-0.12 m, a new one every 4 simulated seconds.
 # VARIANTS="matched scattered" runs some of them only; TRACK (default
 # config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched and
 # scattered's road and target.
@@ -51,7 +53,7 @@ fi
 CFG=config/sim.toml
 mkdir -p "$OUT"
 
-VARIANTS=${VARIANTS:-plain randomised matched scattered layouts}
+VARIANTS=${VARIANTS:-plain randomised matched scattered layouts matched_layouts}
 wanted() { [[ " $VARIANTS " == *" $1 "* ]]; }
 
 # run NAME drive|scatter SIM_ARGS...
@@ -76,6 +78,8 @@ run() {
 
 sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
 sed "s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
+sed "s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = [0.09, 0.12]/" \
+  "$OUT/matched.toml" > "$OUT/matched_layouts.toml"
 if wanted plain; then
   echo "== plain: pinhole camera, plain appearance"
   run plain drive --camera pinhole
@@ -97,4 +101,9 @@ fi
 if wanted layouts; then
   echo "== layouts: as randomised, on random track layouts"
   SIM_CFG="$OUT/layouts.toml" run layouts drive --camera jetbot --randomise --random-layouts
+fi
+if wanted matched_layouts; then
+  echo "== matched_layouts: as matched, on random layouts with narrow lanes"
+  SIM_CFG="$OUT/matched_layouts.toml" run matched_layouts drive --camera jetbot --randomise \
+    --random-layouts --swerve-every 2
 fi
