@@ -88,14 +88,11 @@ impl LayoutConfig {
                 self.corner_radius_m[0], self.lane_width_m[1]
             ));
         }
-        if !(3..=12).contains(&self.corners[0]) || self.corners[1] < self.corners[0] {
+        let [least, most] = self.corners;
+        if !(3 <= least && least <= most && most <= 12) {
             return bad(format!(
-                "corners = [{}, {}]: need 3 <= least <= most <= 12",
-                self.corners[0], self.corners[1]
+                "corners = [{least}, {most}]: need 3 <= least <= most <= 12"
             ));
-        }
-        if self.corners[1] > 12 {
-            return bad(format!("corners' most {} is above 12", self.corners[1]));
         }
         if !(self.every_s.is_finite() && self.every_s >= 0.0) {
             return bad(format!("every_s = {}: must be >= 0", self.every_s));
@@ -149,7 +146,7 @@ pub fn draw_toml<R: Rng + ?Sized>(
     let (mw, mh) = mat;
     // The road (two lanes and the edge line) keeps 5 cm and a little from the sides; a
     // corner's arc stays inside its polygon corner, so the polygon may reach that far.
-    let keep = 2.0 * lane / 2.0 + EDGE_LINE_WIDTH_M as f64 / 2.0 + 0.06;
+    let keep = lane + EDGE_LINE_WIDTH_M as f64 / 2.0 + 0.06;
     let (ax, ay) = (mw / 2.0 - keep, mh / 2.0 - keep);
     let (cx, cy) = (mw / 2.0, mh / 2.0);
     let phase = rng.random_range(0.0..TAU);
