@@ -51,6 +51,8 @@ verify "$UNIT"
 mkdir -p "$ROOT/etc/systemd/system/jetpilot.service.d"
 cp systemd/csi-camera.conf "$ROOT/etc/systemd/system/jetpilot.service.d/csi-camera.conf"
 verify "$UNIT + systemd/csi-camera.conf"
+cp systemd/gpio-motors.conf "$ROOT/etc/systemd/system/jetpilot.service.d/gpio-motors.conf"
+verify "$UNIT + systemd/csi-camera.conf + systemd/gpio-motors.conf"
 
 cp systemd/jetpilot.sysusers.conf "$ROOT/usr/lib/sysusers.d/jetpilot.conf"
 if ! out=$(systemd-sysusers --root="$ROOT" --dry-run 2>&1) || grep -qiE 'fail|error|ignor' <<<"$out"; then

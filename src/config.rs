@@ -285,6 +285,8 @@ pub enum MotorBackend {
     Rppal,
     /// No hardware: log and record the commands.
     Log,
+    /// An H-bridge (L298N, TB6612FNG, DRV8833) on GPIO lines and sysfs PWM: `[motors.gpio]`.
+    Gpio,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -322,6 +324,8 @@ pub struct MotorsConfig {
     pub right: TrimConfig,
     /// `log` backend: also append each command as a JSON line to this file.
     pub log_path: Option<PathBuf>,
+    /// `gpio` backend: the H-bridge's chip and pins.
+    pub gpio: Option<crate::hw::hbridge::GpioMotorsConfig>,
 }
 
 impl Default for MotorsConfig {
@@ -336,11 +340,27 @@ impl Default for MotorsConfig {
             left: TrimConfig::default(),
             right: TrimConfig::default(),
             log_path: None,
+            gpio: None,
         }
     }
 }
 
 impl MotorsConfig {
+    /// The per-motor trims. `invert` unset means the HAT layout's default on a HAT, and
+    /// false on an H-bridge (wire it the right way round, or set it).
+    pub fn trims(&self) -> (MotorTrim, MotorTrim) {
+        let (li, ri) = match self.backend {
+            MotorBackend::Gpio => (false, false),
+            _ => self.layout.default_invert(),
+        };
+        let trim = |t: &TrimConfig, default_invert| MotorTrim {
+            alpha: t.alpha,
+            beta: t.beta,
+            invert: t.invert.unwrap_or(default_invert),
+        };
+        (trim(&self.left, li), trim(&self.right, ri))
+    }
+
     pub fn hat_settings(&self) -> HatSettings {
         let mut s = HatSettings::for_layout(self.layout);
         if let Some(a) = self.address {
@@ -527,6 +547,22 @@ impl Config {
             v.range("motors.pwm_hz", f, 24.0, 1600.0)?;
         }
         v.range_u("motors.retries", m.retries as u64, 0, 10)?;
+        match (m.backend, &m.gpio) {
+            (MotorBackend::Gpio, None) => {
+                return Err(v.err(
+                    "motors.gpio",
+                    "(missing)",
+                    "a [motors.gpio] section with the chip and pins (config/l298n-nano.toml shows one)",
+                ));
+            }
+            (MotorBackend::Gpio, Some(g)) => g.check().map_err(|e| ConfigError::Parse {
+                path: v.origin.to_string(),
+                line: String::new(),
+                key: e.key,
+                message: e.message,
+            })?,
+            _ => {}
+        }
         for (side, t) in [("left", &m.left), ("right", &m.right)] {
             v.range(&format!("motors.{side}.alpha"), t.alpha, 0.0, 2.0)?;
             v.range(&format!("motors.{side}.beta"), t.beta, -0.5, 0.5)?;

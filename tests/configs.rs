@@ -31,6 +31,40 @@ fn waveshare_and_yahboom_layouts() {
 }
 
 #[test]
+fn l298n_nano_drives_both_motors_through_gpio_lines_and_hardware_pwm() {
+    let cfg = load("l298n-nano.toml");
+    assert_eq!(cfg.motors.backend, MotorBackend::Gpio);
+    let g = cfg.motors.gpio.as_ref().unwrap();
+    assert_eq!(g.chip, jetpilot::hw::hbridge::BridgeChip::L298n);
+    assert_eq!(
+        g.summary(),
+        "l298n H-bridge on /dev/gpiochip0 and /sys/class/pwm: left IN1 line 76, IN2 line 51, \
+         PWM pwmchip0/pwm0; right IN1 line 12, IN2 line 77, PWM pwmchip0/pwm2; 1000 Hz, stop = coast"
+    );
+    // An H-bridge kit's motors are not inverted unless the config says so.
+    let (l, r) = cfg.motors.trims();
+    assert!(!l.invert && !r.invert);
+}
+
+#[test]
+fn a_gpio_backend_without_its_pins_is_refused_naming_the_key() {
+    let err = Config::parse("[motors]\nbackend = \"gpio\"\n", "kit.toml").unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("kit.toml") && msg.contains("motors.gpio"),
+        "{msg}"
+    );
+    let err = Config::parse(
+        "[motors]\nbackend = \"gpio\"\n[motors.gpio]\nchip = \"tb6612fng\"\n\
+         [motors.gpio.left]\nin1 = 1\nin2 = 2\npwm = { chip = 0, channel = 0 }\n",
+        "kit.toml",
+    )
+    .unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains("motors.gpio.right.in1"), "{msg}");
+}
+
+#[test]
 fn demo_runs_on_bundled_frames_with_virtual_motors() {
     let cfg = load("demo.toml");
     assert_eq!(cfg.motors.backend, MotorBackend::Log);

@@ -78,6 +78,48 @@ impl Policy for Straight {
     }
 }
 
+/// A DIY car without a motor HAT: config/l298n-nano.toml's L298N, driven through the
+/// daemon's H-bridge driver on the simulator's virtual GPIO lines and PWM channels, drives
+/// the same laps as the HAT car.
+#[test]
+fn an_l298n_car_drives_through_its_virtual_h_bridge() {
+    let small = small_config("");
+    let mut cfg = Config::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/l298n-nano.toml"),
+    )
+    .unwrap();
+    cfg.sim = small.sim.clone();
+    cfg.control = small.control.clone();
+    let laps = |cfg: &Config| {
+        let mut rig = setup::build(cfg).unwrap();
+        let mut pilot = Pilot::expert(cfg.sim.expert, 0);
+        let lap_s = rig.world.track.length() as f64 / cfg.sim.expert.speed_mps as f64;
+        closed_loop::run(
+            &mut rig.world,
+            &mut rig.motors,
+            &mut pilot,
+            &cfg.sim.loop_settings(lap_s * 3.0, cfg),
+            (48, 48),
+            |_| {},
+        )
+        .unwrap();
+        assert_eq!(rig.world.stats.interventions, 0);
+        (
+            rig.world.laps(),
+            rig.hat.transactions(),
+            rig.motors.describe(),
+        )
+    };
+    let (bridge_laps, hat_writes, describe) = laps(&cfg);
+    assert!(describe.contains("l298n H-bridge"), "{describe}");
+    assert_eq!(hat_writes, 0, "the virtual HAT is not what moved it");
+    let (hat_laps, _, _) = laps(&small);
+    assert!(
+        bridge_laps > 2.0 && (bridge_laps - hat_laps).abs() < 0.05 * hat_laps,
+        "H-bridge {bridge_laps} laps, HAT {hat_laps}"
+    );
+}
+
 #[test]
 fn leaving_the_road_counts_interventions_and_recentres() {
     let cfg = small_config("");

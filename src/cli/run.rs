@@ -242,6 +242,10 @@ fn pipeline(cfg: &Config, policy: &jetpilot::policy::OrtPolicy, source: String) 
     let g = cfg.control.gains();
     let motors = match cfg.motors.backend {
         jetpilot::config::MotorBackend::Log => "log backend (virtual motors)".to_string(),
+        jetpilot::config::MotorBackend::Gpio => match &cfg.motors.gpio {
+            Some(g) => g.summary(),
+            None => "gpio backend without a [motors.gpio] section".to_string(),
+        },
         _ => {
             let h = cfg.motors.hat_settings();
             format!(

@@ -70,7 +70,26 @@ pub fn open_motors(
         }
         MotorBackend::I2c => open_linux(cfg),
         MotorBackend::Rppal => open_rpi(cfg),
+        MotorBackend::Gpio => open_gpio(cfg),
     }
+}
+
+#[cfg(feature = "linux-hal")]
+fn open_gpio(cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    let gpio = cfg.motors.gpio.as_ref().ok_or_else(|| {
+        MotorError::Invalid("motors.backend = \"gpio\" needs a [motors.gpio] section".into())
+    })?;
+    Ok(Box::new(crate::hw::hbridge::open_linux(
+        gpio,
+        cfg.motors.trims(),
+    )?))
+}
+
+#[cfg(not(feature = "linux-hal"))]
+fn open_gpio(_cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
+    Err(MotorError::Invalid(
+        "motors.backend = \"gpio\" needs a build with the `linux-hal` feature".into(),
+    ))
 }
 
 #[cfg(feature = "linux-hal")]

@@ -237,7 +237,7 @@ impl<P: OutputPin> Drop for GpioBuzzer<P> {
 
 /// Turns a GPIO open error into advice.
 #[cfg_attr(not(feature = "linux-hal"), allow(dead_code))]
-fn open_advice(err: &str) -> String {
+pub(crate) fn open_advice(err: &str) -> String {
     if err.contains("Permission denied") {
         format!(
             "{err}: add the user to the `gpio` group (`sudo usermod -aG gpio $USER`) and install the udev rule systemd/99-jetpilot.rules, which gives the group /dev/gpiochip*"

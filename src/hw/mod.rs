@@ -1,5 +1,6 @@
 //! Hardware seams and their drivers: motor outputs (PCA9685 motor HATs over embedded-hal
-//! I2C, or a virtual output that records commands) and I2C bus backends.
+//! I2C, GPIO H-bridges in [`hbridge`], or a virtual output that records commands) and I2C
+//! bus backends.
 //!
 //! # Troubleshooting
 //! - `Permission denied` on `/dev/i2c-1`: add the user to the `i2c` group
@@ -14,6 +15,7 @@
 pub mod bus;
 pub mod buzzer;
 pub mod gamepad;
+pub mod hbridge;
 pub mod layout;
 pub mod motor_hat;
 pub mod motors;

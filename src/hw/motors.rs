@@ -20,8 +20,10 @@ pub enum MotorError {
         attempts: u32,
         reason: String,
     },
-    #[error("motor HAT: invalid setting: {0}")]
+    #[error("motors: invalid setting: {0}")]
     Invalid(String),
+    #[error("H-bridge {pin}: {reason}")]
+    Gpio { pin: String, reason: String },
     #[error("motor command log {path}: {source}")]
     Log {
         path: String,

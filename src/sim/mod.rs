@@ -33,7 +33,9 @@ pub mod scene;
 pub mod setup;
 pub mod synth;
 pub mod track;
+pub mod virtual_bridge;
 pub mod virtual_hat;
+pub mod virtual_motors;
 pub mod world;
 
 use serde::{Deserialize, Serialize};

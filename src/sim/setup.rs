@@ -16,10 +16,12 @@ use super::reward::RewardParams;
 use super::robot::RobotParams;
 use super::synth::{RecordedFrame, Recording, Synthesizer};
 use super::track::Track;
+use super::virtual_bridge::VirtualBridge;
 use super::virtual_hat::VirtualPca9685;
+use super::virtual_motors::{SimMotors, VirtualMotors};
 use super::world::{FrameMaker, World};
 use super::{Pose2, SimError};
-use crate::config::Config;
+use crate::config::{Config, MotorBackend};
 use crate::hw::MotorHat;
 use crate::hw::motor_hat::HatSettings;
 
@@ -106,7 +108,10 @@ impl SimConfig {
 /// A world and the motor driver that moves it.
 pub struct SimRig {
     pub world: World,
-    pub motors: MotorHat<VirtualPca9685>,
+    /// The daemon's motor driver on the virtual hardware `[motors]` names.
+    pub motors: SimMotors,
+    /// The virtual PCA9685 (for tests: its bus counters and fault injection). With
+    /// `motors.backend = "gpio"` nothing drives it: the H-bridge moves the robot.
     pub hat: VirtualPca9685,
     pub camera: CameraModel,
 }
@@ -159,16 +164,48 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
     let mut settings: HatSettings = cfg.motors.hat_settings();
     settings.bus_name = "virtual PCA9685".into();
     let hat = VirtualPca9685::new(settings.address);
-    let (il, ir) = (settings.left.invert, settings.right.invert);
-    let layout = settings.layout;
-    let motors = MotorHat::init(hat.clone(), settings, &mut NoDelay)
-        .map_err(|e| SimError::Invalid(format!("virtual motor HAT: {e}")))?;
+    let invert = (settings.left.invert, settings.right.invert);
+    let (motors, hardware) = match (&cfg.motors.backend, &cfg.motors.gpio) {
+        (MotorBackend::Gpio, Some(gpio)) => {
+            let bridge = VirtualBridge::new(gpio.clone());
+            let trims = cfg.motors.trims();
+            let driver = crate::hw::hbridge::assemble(
+                gpio,
+                trims,
+                format!("virtual {}", gpio.summary()),
+                |line, _| Ok(bridge.pin(line)),
+                |ch, _| Ok(bridge.pwm(ch)),
+            )
+            .map_err(|e| SimError::Invalid(format!("virtual H-bridge: {e}")))?;
+            (
+                SimMotors::Bridge(Box::new(driver)),
+                (
+                    VirtualMotors::Bridge(bridge),
+                    (trims.0.invert, trims.1.invert),
+                ),
+            )
+        }
+        _ => {
+            let layout = settings.layout;
+            let driver = MotorHat::init(hat.clone(), settings, &mut NoDelay)
+                .map_err(|e| SimError::Invalid(format!("virtual motor HAT: {e}")))?;
+            (
+                SimMotors::Hat(driver),
+                (
+                    VirtualMotors::Hat {
+                        hat: hat.clone(),
+                        layout,
+                    },
+                    invert,
+                ),
+            )
+        }
+    };
     let mut world = World::new(
         track,
         cfg.sim.robot,
-        hat.clone(),
-        layout,
-        (il, ir),
+        hardware.0,
+        hardware.1,
         frames,
         cfg.sim.reward,
         cfg.sim.seed,

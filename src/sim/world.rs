@@ -1,10 +1,11 @@
 //! The simulated world: the robot on the track, moved by whatever the daemon's motor driver
-//! wrote into the virtual PCA9685, seen through the camera (rendered, or re-projected from a
-//! recording), scored with the paper's reward, with interventions when it leaves the road.
+//! wrote into the virtual motor hardware (PCA9685 HAT or GPIO H-bridge), seen through the
+//! camera (rendered, or re-projected from a recording), scored with the paper's reward,
+//! with interventions when it leaves the road.
 //!
 //! One control period is: [`World::observe`] (camera frame at the current pose), the pilot
-//! writes the motors, [`World::advance`] (physics substeps reading the HAT's registers), then
-//! [`World::score`] (reward, intervention, laps).
+//! writes the motors, [`World::advance`] (physics substeps reading the virtual hardware),
+//! then [`World::score`] (reward, intervention, laps).
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -15,9 +16,8 @@ use super::reward::{RewardParams, is_reward, reward};
 use super::robot::{Robot, RobotParams};
 use super::synth::Synthesizer;
 use super::track::Track;
-use super::virtual_hat::VirtualPca9685;
+use super::virtual_motors::VirtualMotors;
 use super::{Pose2, render::Renderer};
-use crate::hw::HatLayout;
 
 /// How camera frames are made.
 pub enum FrameMaker {
@@ -60,8 +60,7 @@ pub struct StepScore {
 pub struct World {
     pub track: Track,
     pub robot: Robot,
-    hat: VirtualPca9685,
-    layout: HatLayout,
+    motors: VirtualMotors,
     invert: (bool, bool),
     frames: FrameMaker,
     reward: RewardParams,
@@ -112,14 +111,13 @@ impl Default for StallRule {
 }
 
 impl World {
-    /// `hat` is a handle on the virtual PCA9685 the daemon's driver writes to; `layout` and
-    /// `invert` say how its channels reach the wheels (as on the real robot).
-    #[allow(clippy::too_many_arguments)]
+    /// `motors` is a handle on the virtual hardware the daemon's driver writes to (HAT or
+    /// H-bridge); `invert` says which motors are wired the other way round (as on the real
+    /// robot).
     pub fn new(
         track: Track,
         robot: RobotParams,
-        hat: VirtualPca9685,
-        layout: HatLayout,
+        motors: VirtualMotors,
         invert: (bool, bool),
         frames: FrameMaker,
         reward: RewardParams,
@@ -129,8 +127,7 @@ impl World {
         let mut w = Self {
             robot: Robot::new(robot, start),
             track,
-            hat,
-            layout,
+            motors,
             invert,
             frames,
             reward,
@@ -298,11 +295,9 @@ impl World {
         }
     }
 
-    /// Physics for `dt` seconds with the wheel duties the HAT's registers say now.
+    /// Physics for `dt` seconds with the wheel duties the virtual motor hardware says now.
     pub fn advance(&mut self, dt: f32) {
-        let (l, r) = self
-            .hat
-            .wheel_duties(self.layout, self.invert.0, self.invert.1);
+        let (l, r) = self.motors.wheel_duties(self.invert);
         let before = self.robot.pose;
         self.robot.step(l, r, dt, &mut self.rng);
         let after = self.robot.pose;
