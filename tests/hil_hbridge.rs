@@ -574,3 +574,88 @@ fn the_config_wiring_becomes_the_same_driver() {
     );
     assert!(b.describe().starts_with("tb6612fng H-bridge"));
 }
+
+/// The driver on sysfs PWM over a fake `/sys/class/pwm` tree (channels 0 and 2 of
+/// pwmchip0 already exported, as on a Nano after jetson-io) with fake direction pins.
+#[test]
+fn l298n_on_a_fake_sysfs_pwm_tree() {
+    use jetpilot::hw::hbridge::sysfs_pwm::SysfsPwm;
+    let root = tempfile::tempdir().unwrap();
+    for ch in [0, 2] {
+        let dir = root.path().join(format!("pwmchip0/pwm{ch}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in ["period", "duty_cycle", "enable"] {
+            std::fs::write(dir.join(f), "0").unwrap();
+        }
+    }
+    let read = |ch: u32, f: &str| {
+        std::fs::read_to_string(root.path().join(format!("pwmchip0/pwm{ch}/{f}"))).unwrap()
+    };
+    let cfg = GpioMotorsConfig {
+        pwm_root: root.path().to_path_buf(),
+        pwm_hz: 2000.0,
+        left: GpioMotorPins {
+            in1: Some(76),
+            in2: Some(51),
+            pwm: Some(PwmChannel { chip: 0, channel: 0 }),
+            ..GpioMotorPins::default()
+        },
+        right: GpioMotorPins {
+            in1: Some(12),
+            in2: Some(77),
+            pwm: Some(PwmChannel { chip: 0, channel: 2 }),
+            ..GpioMotorPins::default()
+        },
+        ..GpioMotorsConfig::default()
+    };
+    let log = Log::default();
+    let mut b = jetpilot::hw::hbridge::assemble(
+        &cfg,
+        (MotorTrim::default(), MotorTrim::default()),
+        cfg.summary(),
+        |line, _| {
+            let n: &'static str = Box::leak(format!("line{line}").into_boxed_str());
+            Ok(FakePin {
+                name: n,
+                log: log.clone(),
+            })
+        },
+        |ch, name| {
+            SysfsPwm::open(&cfg.pwm_root, ch.chip, ch.channel, cfg.pwm_hz).map_err(|e| {
+                jetpilot::hw::MotorError::Gpio {
+                    pin: name.into(),
+                    reason: e.to_string(),
+                }
+            })
+        },
+    )
+    .unwrap();
+    // 2 kHz: a 500 us period; both outputs enabled at duty 0, direction pins low.
+    for ch in [0, 2] {
+        assert_eq!((read(ch, "period"), read(ch, "enable")), ("500000".into(), "1".into()));
+        assert_eq!(read(ch, "duty_cycle"), "0");
+    }
+    assert_eq!(
+        log.take(),
+        ev(&["line76 0", "line51 0", "line12 0", "line77 0"])
+    );
+    // Turn: left forward at int(255 * 0.6) = 153 -> 0.6 of 65535 = 39321 -> 300000 ns;
+    // right backward at 0.2: 51 -> 13107 -> 100000 ns.
+    b.drive(WheelCommand::new(0.6, -0.2)).unwrap();
+    assert_eq!(read(0, "duty_cycle"), "300000");
+    assert_eq!(read(2, "duty_cycle"), "100000");
+    assert_eq!(log.take(), ev(&["line76 1", "line77 1"]));
+    b.stop().unwrap();
+    assert_eq!((read(0, "duty_cycle"), read(2, "duty_cycle")), ("0".into(), "0".into()));
+    assert_eq!(
+        log.take(),
+        ev(&["line76 0", "line51 0", "line12 0", "line77 0"])
+    );
+    b.drive(WheelCommand::new(1.0, 1.0)).unwrap();
+    assert_eq!(read(0, "duty_cycle"), "500000");
+    // Dropped (the daemon exiting, a panic unwinding): stopped, outputs disabled.
+    drop(b);
+    for ch in [0, 2] {
+        assert_eq!((read(ch, "duty_cycle"), read(ch, "enable")), ("0".into(), "0".into()));
+    }
+}
