@@ -3,13 +3,19 @@
 # libclang-dev for bindgen (the v4l crate generates its V4L2 bindings at build time);
 # fonts-dejavu-core for the text of the trainer's learning-curve PNGs; mesa-vulkan-drivers
 # (Mesa's lavapipe, a CPU Vulkan driver, with the Vulkan loader) for the tests of the
-# trainer's wgpu backend (`train --device wgpu:cpu`) on machines without a GPU.
+# trainer's wgpu backend (`train --device wgpu:cpu`) on machines without a GPU; e2fsprogs,
+# gdisk and fakeroot for the SD-image installer and its tests.
 set -euo pipefail
 need=()
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 dpkg -s fonts-dejavu-core >/dev/null 2>&1 || need+=(fonts-dejavu-core)
 dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || need+=(mesa-vulkan-drivers)
 dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
+# `jetpilot image install` writes with e2fsprogs (debugfs, e2fsck, e2undo); its tests build
+# SD card images with gdisk's sgdisk and mkfs.ext4 under fakeroot.
+for p in e2fsprogs gdisk fakeroot; do
+  dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
+done
 if [ ${#need[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" -eq 0 ] || SUDO=sudo

@@ -17,6 +17,7 @@ pub mod control;
 pub mod dataset;
 pub mod drive;
 pub mod hw;
+pub mod image;
 pub mod policy;
 pub mod score;
 pub mod sim;

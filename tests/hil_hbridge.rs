@@ -597,13 +597,19 @@ fn l298n_on_a_fake_sysfs_pwm_tree() {
         left: GpioMotorPins {
             in1: Some(76),
             in2: Some(51),
-            pwm: Some(PwmChannel { chip: 0, channel: 0 }),
+            pwm: Some(PwmChannel {
+                chip: 0,
+                channel: 0,
+            }),
             ..GpioMotorPins::default()
         },
         right: GpioMotorPins {
             in1: Some(12),
             in2: Some(77),
-            pwm: Some(PwmChannel { chip: 0, channel: 2 }),
+            pwm: Some(PwmChannel {
+                chip: 0,
+                channel: 2,
+            }),
             ..GpioMotorPins::default()
         },
         ..GpioMotorsConfig::default()
@@ -632,7 +638,10 @@ fn l298n_on_a_fake_sysfs_pwm_tree() {
     .unwrap();
     // 2 kHz: a 500 us period; both outputs enabled at duty 0, direction pins low.
     for ch in [0, 2] {
-        assert_eq!((read(ch, "period"), read(ch, "enable")), ("500000".into(), "1".into()));
+        assert_eq!(
+            (read(ch, "period"), read(ch, "enable")),
+            ("500000".into(), "1".into())
+        );
         assert_eq!(read(ch, "duty_cycle"), "0");
     }
     assert_eq!(
@@ -646,7 +655,10 @@ fn l298n_on_a_fake_sysfs_pwm_tree() {
     assert_eq!(read(2, "duty_cycle"), "100000");
     assert_eq!(log.take(), ev(&["line76 1", "line77 1"]));
     b.stop().unwrap();
-    assert_eq!((read(0, "duty_cycle"), read(2, "duty_cycle")), ("0".into(), "0".into()));
+    assert_eq!(
+        (read(0, "duty_cycle"), read(2, "duty_cycle")),
+        ("0".into(), "0".into())
+    );
     assert_eq!(
         log.take(),
         ev(&["line76 0", "line51 0", "line12 0", "line77 0"])
@@ -656,6 +668,9 @@ fn l298n_on_a_fake_sysfs_pwm_tree() {
     // Dropped (the daemon exiting, a panic unwinding): stopped, outputs disabled.
     drop(b);
     for ch in [0, 2] {
-        assert_eq!((read(ch, "duty_cycle"), read(ch, "enable")), ("0".into(), "0".into()));
+        assert_eq!(
+            (read(ch, "duty_cycle"), read(ch, "enable")),
+            ("0".into(), "0".into())
+        );
     }
 }

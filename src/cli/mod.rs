@@ -4,6 +4,7 @@
 mod bench;
 mod bench_sim;
 mod camera;
+mod image;
 mod interventions;
 mod model;
 mod panel;
@@ -91,6 +92,9 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
         args: Vec<String>,
     },
+    /// Put jetpilot into a JetBot SD card image before flashing it.
+    #[command(subcommand)]
+    Image(image::ImageCommand),
     /// Write synthetic road frames (a JetBot-mat road bending left and right) to try `run`
     /// without a camera.
     Samples(samples::SamplesArgs),
@@ -109,6 +113,7 @@ pub fn main() -> ExitCode {
         Command::Interventions(cmd) => interventions::main(cmd),
         Command::Bench(args) => bench::main(args),
         Command::Samples(args) => samples::main(args),
+        Command::Image(cmd) => image::main(cmd),
         Command::Sim(args) => sim::sim(args),
         Command::Eval(args) => sim::eval(args),
         Command::Score(args) => score::main(args),
