@@ -29,13 +29,20 @@ mkdir -p "$ROOT/usr/bin" "$ROOT/lib/systemd" "$ROOT/etc/jetpilot" "$ROOT/usr/lib
 cp -r "$(readlink -f /lib/systemd/system)" "$ROOT/lib/systemd/system"
 printf '#!/bin/sh\nexit 0\n' >"$ROOT/usr/bin/jetpilot"
 chmod 755 "$ROOT/usr/bin/jetpilot"
+# The first-boot unit's commands, where Ubuntu 18.04 (JetPack 4.x) has them.
+mkdir -p "$ROOT/bin"
+for b in systemd-sysusers touch; do
+  printf '#!/bin/sh\nexit 0\n' >"$ROOT/bin/$b"
+  chmod 755 "$ROOT/bin/$b"
+done
 cp "$UNIT" "$ROOT/lib/systemd/system/jetpilot.service"
+cp systemd/jetpilot-firstboot.service "$ROOT/lib/systemd/system/jetpilot-firstboot.service"
 touch "$ROOT/etc/jetpilot/jetpilot.toml"
 
 # verify exits 0 on warnings (unknown keys, bad values); any line about our unit fails.
 verify() {
-  local what=$1 out
-  if ! out=$(systemd-analyze verify --root="$ROOT" jetpilot.service 2>&1); then
+  local what=$1 unit=${2:-jetpilot.service} out
+  if ! out=$(systemd-analyze verify --root="$ROOT" "$unit" 2>&1); then
     echo "$out" >&2
     echo "check-systemd: FAIL: systemd-analyze verify ($what)" >&2
     exit 1
@@ -48,6 +55,7 @@ verify() {
   echo "verify $what: ok"
 }
 verify "$UNIT"
+verify systemd/jetpilot-firstboot.service jetpilot-firstboot.service
 mkdir -p "$ROOT/etc/systemd/system/jetpilot.service.d"
 cp systemd/csi-camera.conf "$ROOT/etc/systemd/system/jetpilot.service.d/csi-camera.conf"
 verify "$UNIT + systemd/csi-camera.conf"

@@ -4,6 +4,8 @@
 # JetPack 4.6). Idempotent: does nothing when the library is already there.
 #
 #   scripts/install-onnxruntime.sh        # prints the library's path
+#   JETPILOT_ORT_ARCH=aarch64 JETPILOT_ORT_DIR=.cache/ort-aarch64 scripts/install-onnxruntime.sh
+#                                         # the robot's library, for `jetpilot image install`
 #
 # Destination: $JETPILOT_ORT_DIR, else ${XDG_DATA_HOME:-~/.local/share}/jetpilot/onnxruntime,
 # one of the places jetpilot searches by itself.
@@ -18,10 +20,10 @@ if [ -f "$LIB" ]; then
   exit 0
 fi
 
-case "$(uname -m)" in
+case "${JETPILOT_ORT_ARCH:-$(uname -m)}" in
   x86_64) PLATFORM=manylinux_2_27_x86_64 ;;
   aarch64 | arm64) PLATFORM=manylinux_2_27_aarch64 ;;
-  *) echo "install-onnxruntime: no onnxruntime wheel for $(uname -m)" >&2; exit 1 ;;
+  *) echo "install-onnxruntime: no onnxruntime wheel for ${JETPILOT_ORT_ARCH:-$(uname -m)}" >&2; exit 1 ;;
 esac
 
 PY=${PYTHON:-python3}
