@@ -79,10 +79,20 @@ fn open_gpio(cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
     let gpio = cfg.motors.gpio.as_ref().ok_or_else(|| {
         MotorError::Invalid("motors.backend = \"gpio\" needs a [motors.gpio] section".into())
     })?;
-    Ok(Box::new(crate::hw::hbridge::open_linux(
-        gpio,
-        cfg.motors.trims(),
-    )?))
+    let trims = cfg.motors.trims();
+    match gpio.pwm_backend {
+        crate::hw::hbridge::PwmBackend::Sysfs => {
+            Ok(Box::new(crate::hw::hbridge::open_linux(gpio, trims)?))
+        }
+        #[cfg(feature = "rpi")]
+        crate::hw::hbridge::PwmBackend::Rppal => {
+            Ok(Box::new(crate::hw::hbridge::open_rppal(gpio, trims)?))
+        }
+        #[cfg(not(feature = "rpi"))]
+        crate::hw::hbridge::PwmBackend::Rppal => Err(MotorError::Invalid(
+            "motors.gpio.pwm_backend = \"rppal\" needs a build with the `rpi` feature (cargo build --features rpi)".into(),
+        )),
+    }
 }
 
 #[cfg(not(feature = "linux-hal"))]

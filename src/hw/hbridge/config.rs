@@ -22,6 +22,17 @@ impl std::fmt::Display for PwmChannel {
     }
 }
 
+/// Where the PWM comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PwmBackend {
+    /// Linux's `/sys/class/pwm` (Jetson Nano, Raspberry Pi, most boards).
+    #[default]
+    Sysfs,
+    /// rppal's PWM on a Raspberry Pi (a build with `--features rpi`): channels 0-3 of chip 0.
+    Rppal,
+}
+
 /// `[motors.gpio.left]` / `[motors.gpio.right]`: one motor's pins. L298N and TB6612FNG
 /// take `in1`, `in2` (GPIO line offsets on `gpiochip`) and `pwm`; DRV8833 takes `in1_pwm`
 /// and `in2_pwm`.
@@ -45,6 +56,7 @@ pub struct GpioMotorsConfig {
     pub gpiochip: PathBuf,
     /// Where the PWM chips are (tests point this at a fake tree).
     pub pwm_root: PathBuf,
+    pub pwm_backend: PwmBackend,
     /// PWM frequency (10 ..= 100000 Hz).
     pub pwm_hz: f32,
     pub stop: StopMode,
@@ -60,6 +72,7 @@ impl Default for GpioMotorsConfig {
             chip: BridgeChip::L298n,
             gpiochip: PathBuf::from("/dev/gpiochip0"),
             pwm_root: PathBuf::from(super::sysfs_pwm::SYSFS_PWM_ROOT),
+            pwm_backend: PwmBackend::Sysfs,
             pwm_hz: 1000.0,
             stop: StopMode::Coast,
             standby: None,
@@ -145,6 +158,14 @@ impl GpioMotorsConfig {
         for (i, (k, l)) in lines.iter().enumerate() {
             if let Some((k0, _)) = lines[..i].iter().find(|(_, l0)| l0 == l) {
                 return Err(err(k.clone(), format!("line {l} is already used by {k0}")));
+            }
+        }
+        if self.pwm_backend == PwmBackend::Rppal {
+            if let Some((k, c)) = pwms.iter().find(|(_, c)| c.chip != 0 || c.channel > 3) {
+                return Err(err(
+                    k.clone(),
+                    format!("{c}: rppal drives channels 0-3 of chip 0"),
+                ));
             }
         }
         for (i, (k, c)) in pwms.iter().enumerate() {
@@ -248,6 +269,18 @@ mod tests {
         assert!(e.message.contains("left.in2"), "{}", e.message);
         let mut c = l298n();
         c.right.pwm = c.left.pwm;
+        assert_eq!(c.check().unwrap_err().key, "motors.gpio.right.pwm");
+    }
+
+    #[test]
+    fn rppal_takes_channels_0_to_3_of_chip_0() {
+        let mut c = l298n();
+        c.pwm_backend = PwmBackend::Rppal;
+        assert_eq!(c.check(), Ok(()));
+        c.right.pwm = Some(PwmChannel {
+            chip: 1,
+            channel: 0,
+        });
         assert_eq!(c.check().unwrap_err().key, "motors.gpio.right.pwm");
     }
 

@@ -19,10 +19,12 @@
 pub mod chip;
 pub mod config;
 pub mod driver;
+#[cfg(feature = "rpi")]
+pub mod rppal_pwm;
 pub mod sysfs_pwm;
 
 pub use chip::{BridgeChip, BridgeState, StopMode};
-pub use config::{GpioMotorPins, GpioMotorsConfig, PwmChannel};
+pub use config::{GpioMotorPins, GpioMotorsConfig, PwmBackend, PwmChannel};
 pub use driver::{BridgeMotor, HBridge, MotorWiring, Named};
 
 use embedded_hal::digital::OutputPin;
@@ -85,13 +87,14 @@ where
     HBridge::new(cfg.chip, cfg.stop, left, right, standby, description)
 }
 
-/// The H-bridge on this Linux board: direction and standby lines through gpio-cdev,
-/// requested as outputs (initially low) with consumer `jetpilot`, PWM through sysfs.
+/// Direction and standby lines through gpio-cdev, requested as outputs (initially low) with
+/// consumer `jetpilot`; the PWMs from `pwm`.
 #[cfg(feature = "linux-hal")]
-pub fn open_linux(
+fn open_cdev<W: SetDutyCycle>(
     cfg: &GpioMotorsConfig,
     trims: (MotorTrim, MotorTrim),
-) -> Result<HBridge<linux_embedded_hal::CdevPin, sysfs_pwm::SysfsPwm>> {
+    pwm: impl FnMut(PwmChannel, &str) -> Result<W>,
+) -> Result<HBridge<linux_embedded_hal::CdevPin, W>> {
     use gpio_cdev::{Chip, LineRequestFlags};
     cfg.check()
         .map_err(|e| MotorError::Invalid(format!("{}: {}", e.key, e.message)))?;
@@ -110,13 +113,35 @@ pub fn open_linux(
             .map_err(err)?;
         linux_embedded_hal::CdevPin::new(handle).map_err(err)
     };
-    let pwm = |ch: PwmChannel, name: &str| {
+    assemble(cfg, trims, cfg.summary(), pin, pwm)
+}
+
+/// The H-bridge on this Linux board with sysfs PWM (`pwm_backend = "sysfs"`).
+#[cfg(feature = "linux-hal")]
+pub fn open_linux(
+    cfg: &GpioMotorsConfig,
+    trims: (MotorTrim, MotorTrim),
+) -> Result<HBridge<linux_embedded_hal::CdevPin, sysfs_pwm::SysfsPwm>> {
+    open_cdev(cfg, trims, |ch: PwmChannel, name: &str| {
         sysfs_pwm::SysfsPwm::open(&cfg.pwm_root, ch.chip, ch.channel, cfg.pwm_hz).map_err(|e| {
             MotorError::Gpio {
                 pin: name.to_string(),
                 reason: e.to_string(),
             }
         })
-    };
-    assemble(cfg, trims, cfg.summary(), pin, pwm)
+    })
+}
+
+/// The H-bridge on a Raspberry Pi with rppal's PWM (`pwm_backend = "rppal"`).
+#[cfg(all(feature = "linux-hal", feature = "rpi"))]
+pub fn open_rppal(
+    cfg: &GpioMotorsConfig,
+    trims: (MotorTrim, MotorTrim),
+) -> Result<HBridge<linux_embedded_hal::CdevPin, rppal_pwm::RppalPwm>> {
+    open_cdev(cfg, trims, |ch: PwmChannel, name: &str| {
+        rppal_pwm::RppalPwm::open(ch.channel, cfg.pwm_hz).map_err(|e| MotorError::Gpio {
+            pin: name.to_string(),
+            reason: e.to_string(),
+        })
+    })
 }
