@@ -214,6 +214,11 @@ fn installs_into_a_generated_jetson_image_and_twice_is_the_same() {
                 "0644",
             ),
             (
+                "/usr/lib/tmpfiles.d/jetpilot.conf",
+                std::fs::read("systemd/jetpilot.tmpfiles.conf").unwrap(),
+                "0644",
+            ),
+            (
                 "/lib/udev/rules.d/99-jetpilot.rules",
                 std::fs::read("systemd/99-jetpilot.rules").unwrap(),
                 "0644",

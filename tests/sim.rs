@@ -118,6 +118,35 @@ fn an_l298n_car_drives_through_its_virtual_h_bridge() {
         bridge_laps > 2.0 && (bridge_laps - hat_laps).abs() < 0.05 * hat_laps,
         "H-bridge {bridge_laps} laps, HAT {hat_laps}"
     );
+
+    // The real daemon (threads, actuator, watchdog) driving the virtual L298N in real time.
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 48, 4);
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/l298n-nano.toml"),
+    )
+    .unwrap()
+    .replace("\"/var/lib/jetpilot/model.onnx\"", &format!("{model:?}"));
+    let path = dir.path().join("l298n.toml");
+    std::fs::write(&path, text + "\n[sim.camera]\nwidth = 48\nheight = 48\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--realtime", "--seconds", "2", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let written: u32 = text
+        .split(" commands written")
+        .next()
+        .and_then(|s| s.rsplit(", ").next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(0);
+    assert!(written >= 30, "{text}");
 }
 
 #[test]

@@ -15,6 +15,7 @@ pub const KITS: [(&str, &str); 4] = [
 const UNIT: &str = include_str!("../../systemd/jetpilot.service");
 const FIRSTBOOT_UNIT: &str = include_str!("../../systemd/jetpilot-firstboot.service");
 const SYSUSERS: &str = include_str!("../../systemd/jetpilot.sysusers.conf");
+const TMPFILES: &str = include_str!("../../systemd/jetpilot.tmpfiles.conf");
 const UDEV_RULES: &str = include_str!("../../systemd/99-jetpilot.rules");
 const CSI_CAMERA: &str = include_str!("../../systemd/csi-camera.conf");
 const GPIO_MOTORS: &str = include_str!("../../systemd/gpio-motors.conf");
@@ -104,6 +105,7 @@ impl Plan {
                 FIRSTBOOT_UNIT,
             ),
             ("/usr/lib/sysusers.d/jetpilot.conf", SYSUSERS),
+            ("/usr/lib/tmpfiles.d/jetpilot.conf", TMPFILES),
             ("/lib/udev/rules.d/99-jetpilot.rules", UDEV_RULES),
         ] {
             let (s, n) = text(body);
