@@ -26,20 +26,25 @@ if [ ${#need[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need[@]}" >/dev/null
 fi
 ORT=$(JETPILOT_ORT_ARCH=aarch64 JETPILOT_ORT_DIR="$PWD/.cache/ort-aarch64" scripts/install-onnxruntime.sh)
-cargo build --release --locked --quiet
-HOST=${CARGO_TARGET_DIR:-target}/release/jetpilot
+# The PC's jetpilot runs the install: $JETPILOT_HOST_BIN (CI passes the test build's),
+# else a release build.
+HOST=${JETPILOT_HOST_BIN:-}
+if [ -z "$HOST" ]; then
+  cargo build --release --locked --quiet
+  HOST=${CARGO_TARGET_DIR:-target}/release/jetpilot
+fi
 
 W=$(mktemp -d)
 trap 'rm -rf "$W"' EXIT
 SECTOR=28672
 OFFSET=$((SECTOR * 512))
 IMG="$W/jetbot.img"
-truncate -s $((OFFSET + 97 * 1048576)) "$IMG"
+truncate -s $((OFFSET + 257 * 1048576)) "$IMG"
 sgdisk -o -n 2:2048:+1M -c 2:TBC -n 3:4096:+1M -c 3:RP1 \
-  -n 1:$SECTOR:$((SECTOR + 96 * 2048 - 1)) -c 1:APP "$IMG" >/dev/null
+  -n 1:$SECTOR:$((SECTOR + 256 * 2048 - 1)) -c 1:APP "$IMG" >/dev/null
 mkdir -p "$W/skel/etc" "$W/skel/usr/bin" "$W/skel/lib/systemd/system" "$W/skel/var/lib"
 echo jetbot >"$W/skel/etc/hostname"
-fakeroot /sbin/mkfs.ext4 -q -F -b 4096 -E offset=$OFFSET -d "$W/skel" "$IMG" 96M
+fakeroot /sbin/mkfs.ext4 -q -F -b 4096 -E offset=$OFFSET -d "$W/skel" "$IMG" 256M
 "$HOST" -q model init --arch resnet18 --input-size 64 --seed 1 -o "$W/model.onnx"
 
 "$HOST" image install --image "$IMG" --kit jetbot --model "$W/model.onnx" \

@@ -11,9 +11,10 @@ dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 dpkg -s fonts-dejavu-core >/dev/null 2>&1 || need+=(fonts-dejavu-core)
 dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || need+=(mesa-vulkan-drivers)
 dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
-# `jetpilot image install` writes with e2fsprogs (debugfs, e2fsck, e2undo); its tests build
-# SD card images with gdisk's sgdisk and mkfs.ext4 under fakeroot.
-for p in e2fsprogs gdisk fakeroot; do
+# `jetpilot image install` writes with e2fsprogs (debugfs, e2fsck, e2undo) and unpacks
+# downloads with unzip/xz; its tests build SD card images with gdisk's sgdisk and mkfs.ext4
+# under fakeroot, and zip one.
+for p in e2fsprogs gdisk fakeroot unzip zip xz-utils; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -401,3 +401,62 @@ fn bad_inputs_are_refused_without_touching_the_image() {
 
     assert!(std::fs::read(&base.opts.image).unwrap() == image_bytes);
 }
+
+/// From the command line, as a user would: a JetBot image downloaded as a .zip is unpacked
+/// beside the archive (left unchanged) and installed into; a second run refuses to unpack
+/// over the first and says which file to use.
+#[test]
+fn the_cli_unpacks_a_zipped_download_and_installs_into_it() {
+    let i = inputs(96);
+    let dir = i._dir.path();
+    let zip = dir.join("jetbot-043.zip");
+    run(Command::new("zip")
+        .arg("-q")
+        .arg("-1")
+        .arg("-j")
+        .arg(&zip)
+        .arg(&i.opts.image));
+    std::fs::remove_file(&i.opts.image).unwrap();
+    let zipped = std::fs::read(&zip).unwrap();
+    let jp = || {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+        c.args(["image", "install", "--kit", "l298n-nano", "--image"])
+            .arg(&zip)
+            .arg("--model")
+            .arg(&i.opts.model)
+            .arg("--binary")
+            .arg(&i.opts.binary)
+            .arg("--onnxruntime")
+            .arg(&i.opts.onnxruntime);
+        c
+    };
+    let out = jp().output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = dir.join("jetbot.img");
+    assert!(
+        stdout.contains(&format!("done: flash {}", img.display())),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("gpio-motors.conf"),
+        "the H-bridge kit's drop-in: {stdout}"
+    );
+    assert_eq!(std::fs::read(&zip).unwrap(), zipped, "the archive changed");
+    fsck_clean(&img);
+    assert_eq!(
+        dump(&img, "/etc/jetpilot/jetpilot.toml", dir),
+        KITS[3].1.as_bytes()
+    );
+    let out = jp().output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("exists already"),
+        "{err}"
+    );
+    assert!(err.contains(&format!("--image {}", img.display())), "{err}");
+}

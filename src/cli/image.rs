@@ -19,7 +19,8 @@ pub enum ImageCommand {
 
 #[derive(Debug, Args)]
 pub struct InstallArgs {
-    /// The SD card image file (unpacked: .img, not .zip).
+    /// The SD card image file. A .zip, .xz, .gz or .zst download is first unpacked beside
+    /// itself (the archive is left as it is) and the install goes into the unpacked .img.
     #[arg(long, value_name = "FILE.img")]
     image: PathBuf,
     /// The kit: jetbot, waveshare, yahboom, l298n-nano (the configs shipped in config/).
@@ -75,8 +76,19 @@ pub fn main(cmd: ImageCommand) -> anyhow::Result<ExitCode> {
             (format!("config/{name}.toml"), text.to_string())
         }
     };
+    // A compressed download is unpacked beside itself first; the archive stays as it is.
+    let head = jetpilot::image::inputs::head(&a.image, 16)?;
+    let image = match jetpilot::image::inputs::compression(&head) {
+        Some((kind, _)) => {
+            eprintln!("unpacking {} ({kind}) ...", a.image.display());
+            let img = jetpilot::image::unpack::unpack(&a.image, kind)?;
+            eprintln!("unpacked to {}", img.display());
+            img
+        }
+        None => a.image.clone(),
+    };
     let opts = InstallOptions {
-        image: a.image.clone(),
+        image: image.clone(),
         partition: a.partition,
         binary: a.binary,
         onnxruntime: a.onnxruntime,
@@ -99,7 +111,7 @@ pub fn main(cmd: ImageCommand) -> anyhow::Result<ExitCode> {
     let report = install(&opts)?;
     println!(
         "{}: partition {} at byte {}; {:.1} MiB to write, {:.1} MiB free",
-        a.image.display(),
+        image.display(),
         report.partition,
         report.offset,
         report.needed_bytes as f64 / 1048576.0,
@@ -113,7 +125,7 @@ pub fn main(cmd: ImageCommand) -> anyhow::Result<ExitCode> {
     } else {
         println!(
             "done: flash {} and boot; the daemon starts on its own",
-            a.image.display()
+            image.display()
         );
     }
     Ok(ExitCode::SUCCESS)

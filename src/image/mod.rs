@@ -14,6 +14,7 @@ pub mod gpt;
 pub mod inputs;
 pub mod install;
 pub mod plan;
+pub mod unpack;
 
 pub use install::{InstallOptions, InstallReport, install};
 
