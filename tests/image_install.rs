@@ -357,6 +357,13 @@ fn bad_inputs_are_refused_without_touching_the_image() {
     refused(&o, &["bad.toml", "steering_gain"]);
 
     let mut o = base.opts.clone();
+    o.config = (
+        "sneaky.toml".into(),
+        "[model]\npath = \"/var/lib/x\\\" \\\"/etc/shadow\"\n".into(),
+    );
+    refused(&o, &["sneaky.toml", "letters, digits"]);
+
+    let mut o = base.opts.clone();
     o.wifi = Some(("robots".into(), "short".into()));
     refused(&o, &["8 to 63"]);
 

@@ -109,6 +109,24 @@ fn check_inputs(opts: &InstallOptions) -> Result<PlanInputs<'_>, ImageError> {
             ),
         ));
     }
+    // The destination goes into a debugfs command line: plain path characters only, and
+    // nowhere but a state or data folder.
+    let plain = model_dest
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || "/._-+".contains(c));
+    let parts: Vec<&str> = model_dest.split('/').collect();
+    if !plain
+        || parts.iter().any(|p| *p == ".." || *p == ".")
+        || !(model_dest.starts_with("/var/lib/") || model_dest.starts_with("/opt/"))
+    {
+        return Err(input_err(
+            Path::new(cfg_name),
+            format!(
+                "model.path = {model_dest:?}: the installer writes the model under /var/lib/ or /opt/, \
+                 with letters, digits and . _ - + only"
+            ),
+        ));
+    }
     if cfg.motors.backend == MotorBackend::Log {
         return Err(input_err(
             Path::new(cfg_name),
@@ -293,16 +311,26 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
     let tmp =
         tempfile::tempdir().map_err(|e| input_err(Path::new("temporary folder"), e.to_string()))?;
     // Text sources become files debugfs can copy.
+    // Every source gets a plain name in the scratch folder (a link to the user's file, or
+    // the text written out), so no user-chosen path reaches debugfs's command line.
+    let scratch = tmp.path().display().to_string();
+    if scratch.contains(['"', '\n', '\r']) {
+        return Err(input_err(
+            tmp.path(),
+            "the temporary folder's path has quotes or line breaks: set TMPDIR",
+        ));
+    }
     let mut sources = Vec::new();
     for (i, f) in plan.files.iter().enumerate() {
-        sources.push(match &f.source {
-            Source::File(p) => p.clone(),
-            Source::Bytes(b) => {
-                let p = tmp.path().join(format!("src-{i}"));
-                std::fs::write(&p, b).map_err(|e| input_err(&p, e.to_string()))?;
-                p
+        let p = tmp.path().join(format!("src-{i}"));
+        match &f.source {
+            Source::File(src) => {
+                let abs = std::fs::canonicalize(src).map_err(|e| input_err(src, e.to_string()))?;
+                std::os::unix::fs::symlink(&abs, &p).map_err(|e| input_err(&p, e.to_string()))?
             }
-        });
+            Source::Bytes(b) => std::fs::write(&p, b).map_err(|e| input_err(&p, e.to_string()))?,
+        }
+        sources.push(p);
     }
     let (cmds, actions) = commands(&plan, &dirs, &existing, &sources);
     let mut report = InstallReport {
