@@ -25,7 +25,7 @@ use jetpilot::hw::bus::StdDelay;
 use jetpilot::hw::motor_hat::HatSettings;
 use jetpilot::hw::{HatLayout, MotorHat, MotorOutput};
 use jetpilot::policy::onnx::{self, Resnet18Weights};
-use jetpilot::policy::ort_policy::OrtOptions;
+use jetpilot::policy::ort_policy::{OrtOptions, spinning_entries};
 use jetpilot::policy::runtime::{self, Provider};
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
 use ort::environment::Environment;
@@ -193,7 +193,8 @@ fn ort_err<R>(e: ort::Error<R>) -> anyhow::Error {
     anyhow::anyhow!("ONNX Runtime: {e}")
 }
 
-/// A plain session as `OrtPolicy` builds it (Level3, same intra-op threads, CPU).
+/// A plain session as `OrtPolicy` builds it (Level3, same intra-op threads, spinning off,
+/// CPU).
 fn bare_session(env: &Environment, threads: usize, bytes: &[u8]) -> anyhow::Result<Session> {
     let mut builder = Session::builder(env)
         .map_err(ort_err)?
@@ -201,6 +202,9 @@ fn bare_session(env: &Environment, threads: usize, bytes: &[u8]) -> anyhow::Resu
         .map_err(ort_err)?;
     if threads > 0 {
         builder = builder.with_intra_threads(threads).map_err(ort_err)?;
+    }
+    for (key, value) in spinning_entries(false) {
+        builder = builder.with_config_entry(key, value).map_err(ort_err)?;
     }
     builder.commit_from_memory(bytes).map_err(ort_err)
 }
@@ -409,6 +413,7 @@ fn bench_model(
             library: None,
             providers: &[Provider::Cpu],
             intra_threads: args.threads,
+            allow_spinning: false,
             fallback_contract: &fallback,
         },
     )?;
@@ -551,7 +556,7 @@ fn print_header(h: &Header) {
     println!("jetpilot bench {}", env!("CARGO_PKG_VERSION"));
     println!("  ONNX Runtime  {} ({})", h.version, h.library);
     println!(
-        "  session       CPU provider, graph optimisation Level3, intra-op threads: {}",
+        "  session       CPU provider, graph optimisation Level3, spinning off, intra-op threads: {}",
         h.threads
     );
     println!("  CPU           {}", h.cpu);
