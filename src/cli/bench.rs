@@ -42,8 +42,8 @@ use ort::value::TensorRef;
 use super::bench_cpu::{self, Paced};
 
 /// The synthetic camera frame: JetBot's usual capture size.
-const FRAME_W: u32 = 640;
-const FRAME_H: u32 = 480;
+pub(super) const FRAME_W: u32 = 640;
+pub(super) const FRAME_H: u32 = 480;
 /// Distinct frames cycled through (one left-right sweep of the road).
 const FRAMES: usize = 8;
 /// Timed iterations per turn of the round-robin.
@@ -83,6 +83,11 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [15u32, 30],
           value_parser = clap::value_parser!(u32).range(1..=240))]
     paced_fps: Vec<u32>,
+    /// Serve timing blocks of `--model` for `benches/peer_python_loop.py` (the JetBot-style
+    /// Python loop, interleaved): write the synthetic frames into DIR, then answer frame
+    /// counts on standard input with per-frame times as JSON lines.
+    #[arg(long, value_name = "DIR", requires = "model")]
+    peer: Option<PathBuf>,
     /// Also write the results to this file as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -171,14 +176,14 @@ fn stats(samples: &mut [f32]) -> Stats {
 
 /// Bytes and transactions seen by a [`NullBus`].
 #[derive(Debug, Default)]
-struct BusCounters {
+pub(super) struct BusCounters {
     bytes: AtomicU64,
     transactions: AtomicU64,
 }
 
 /// An I2C bus that accepts everything and only counts it (reads return zeros).
 #[derive(Debug, Clone, Default)]
-struct NullBus(Arc<BusCounters>);
+pub(super) struct NullBus(Arc<BusCounters>);
 
 impl ErrorType for NullBus {
     type Error = ErrorKind;
@@ -199,7 +204,7 @@ impl I2c for NullBus {
     }
 }
 
-fn null_hat(counters: &Arc<BusCounters>) -> anyhow::Result<MotorHat<NullBus>> {
+pub(super) fn null_hat(counters: &Arc<BusCounters>) -> anyhow::Result<MotorHat<NullBus>> {
     let settings = HatSettings::for_layout(HatLayout::Adafruit);
     MotorHat::init(NullBus(counters.clone()), settings, &mut StdDelay)
         .context("initialising the motor HAT driver on the null bus")
@@ -814,6 +819,9 @@ pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
     let frames: Vec<Vec<u8>> = (0..FRAMES)
         .map(|i| render_road(FRAME_W, FRAME_H, sample_view(i, FRAMES)))
         .collect();
+    if let (Some(dir), Some(model)) = (&args.peer, &args.model) {
+        return super::bench_peer::serve(model, args.threads, &frames, dir, &ort_version(library));
+    }
     let models = match &args.model {
         Some(path) => vec![user_model(path)?],
         None => {

@@ -3,6 +3,7 @@
 
 mod bench;
 mod bench_cpu;
+mod bench_peer;
 mod bench_sim;
 mod camera;
 mod interventions;
