@@ -412,6 +412,8 @@ struct SizeResult {
     rejected: usize,
     outputs: [f32; 2],
     paced: Vec<Paced>,
+    /// Before this size's sessions load (the process, its frames and what earlier sizes left).
+    memory_start: Option<Memory>,
     /// Right after the policy's session loaded and ran, before any other session.
     memory_policy: Option<Memory>,
     /// At the end of the size.
@@ -452,6 +454,7 @@ fn bench_model(
             false
         }
     };
+    let memory_start = memory_or_warn();
     let fallback = ModelContract::default();
     let load = |allow_spinning| {
         OrtPolicy::load(
@@ -541,6 +544,7 @@ fn bench_model(
         rejected: rig.rejected,
         outputs,
         paced,
+        memory_start,
         memory_policy,
         memory_end: memory_or_warn(),
         peak_reset,
@@ -714,6 +718,12 @@ fn print_result(r: &SizeResult) {
         mib(r.memory_policy),
         mib(r.memory_end)
     );
+    if let Some(m) = r.memory_start {
+        println!(
+            "  (RSS before this size's sessions: {:.1} MiB, the process, its frames and what earlier sizes left)",
+            m.rss_mib()
+        );
+    }
     let load = |l: Option<f32>| l.map_or_else(|| "?".into(), |l| format!("{l:.2}"));
     println!(
         "  load average (1 min): {} at the start of this size, {} at the end",
@@ -787,8 +797,9 @@ fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
         };
         let load = |l: Option<f32>| l.map_or_else(|| "null".into(), |l| l.to_string());
         records.push(format!(
-            "    {{\"size\": {}, \"measurement\": \"memory\", \"peak_rss_policy_mib\": {}, \"peak_rss_mib\": {}, \"rss_end_mib\": {}, \"peak_reset_before_size\": {}, \"load_1min_start\": {}, \"load_1min_end\": {}}}",
+            "    {{\"size\": {}, \"measurement\": \"memory\", \"rss_start_mib\": {}, \"peak_rss_policy_mib\": {}, \"peak_rss_mib\": {}, \"rss_end_mib\": {}, \"peak_reset_before_size\": {}, \"load_1min_start\": {}, \"load_1min_end\": {}}}",
             r.size,
+            mib(r.memory_start, Memory::rss_mib),
             mib(r.memory_policy, Memory::peak_mib),
             mib(r.memory_end, Memory::peak_mib),
             mib(r.memory_end, Memory::rss_mib),
