@@ -16,7 +16,7 @@ use jetpilot::drive::stats::summarise;
 use jetpilot::drive::usage;
 
 /// Rounds the paced time of each combination is split into.
-pub const ROUNDS: usize = 2;
+pub const ROUNDS: usize = 4;
 /// Pause before each run, outside its window: the other session's threads stop spinning.
 const SWITCH_PAUSE: Duration = Duration::from_millis(100);
 
