@@ -225,6 +225,10 @@ pub struct RuntimeConfig {
     pub providers: Vec<Provider>,
     /// Threads inside one operator (0: ONNX Runtime decides).
     pub intra_threads: usize,
+    /// Let ONNX Runtime's worker threads spin-wait for work after each run (its own
+    /// default). Off: they block at once, which costs a little latency per frame but no
+    /// core between frames; `jetpilot bench` shows both.
+    pub allow_spinning: bool,
 }
 
 impl Default for RuntimeConfig {
@@ -233,6 +237,7 @@ impl Default for RuntimeConfig {
             library: None,
             providers: vec![Provider::Cpu],
             intra_threads: 2,
+            allow_spinning: false,
         }
     }
 }
@@ -634,6 +639,15 @@ mod tests {
         assert_eq!(hat.address, 0x60);
         assert_eq!(hat.pwm_hz, 1600.0);
         assert!(hat.left.invert && hat.right.invert);
+    }
+
+    #[test]
+    fn spinning_is_off_unless_the_runtime_section_allows_it() {
+        assert!(!Config::default().runtime.allow_spinning);
+        let cfg = Config::parse("[runtime]\nallow_spinning = true\n", "t.toml").unwrap();
+        assert!(cfg.runtime.allow_spinning);
+        let err = Config::parse("[runtime]\nallow_spinning = 1\n", "t.toml").unwrap_err();
+        assert!(err.to_string().contains("runtime.allow_spinning"), "{err}");
     }
 
     #[test]

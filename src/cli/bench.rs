@@ -7,6 +7,11 @@
 //! and the daemon's whole per-frame path (preprocess -> infer -> output check -> law ->
 //! motor HAT), without its threads. The five measurements run round-robin in blocks, so
 //! noise from the rest of the machine falls on all of them alike.
+//!
+//! Then it paces that per-frame path at camera rates with spinning off and on
+//! ([`super::bench_cpu`]) for CPU time per frame and CPU %, and reports the process's peak
+//! RSS: once the policy's session has loaded and run, and at the end of the size (with the
+//! reference and the spinning sessions loaded as well).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -21,11 +26,12 @@ use jetpilot::camera::synthetic::{render_road, sample_view};
 use jetpilot::config::SafetyConfig;
 use jetpilot::control::{SteeringGains, SteeringLaw};
 use jetpilot::drive::stats::summarise;
+use jetpilot::drive::usage::{self, Memory};
 use jetpilot::hw::bus::StdDelay;
 use jetpilot::hw::motor_hat::HatSettings;
 use jetpilot::hw::{HatLayout, MotorHat, MotorOutput};
 use jetpilot::policy::onnx::{self, Resnet18Weights};
-use jetpilot::policy::ort_policy::OrtOptions;
+use jetpilot::policy::ort_policy::{OrtOptions, spinning_entries};
 use jetpilot::policy::runtime::{self, Provider};
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
 use ort::environment::Environment;
@@ -33,9 +39,11 @@ use ort::session::builder::GraphOptimizationLevel;
 use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
 
+use super::bench_cpu::{self, Paced};
+
 /// The synthetic camera frame: JetBot's usual capture size.
-const FRAME_W: u32 = 640;
-const FRAME_H: u32 = 480;
+pub(super) const FRAME_W: u32 = 640;
+pub(super) const FRAME_H: u32 = 480;
 /// Distinct frames cycled through (one left-right sweep of the road).
 const FRAMES: usize = 8;
 /// Timed iterations per turn of the round-robin.
@@ -67,6 +75,19 @@ pub struct BenchArgs {
     /// Benchmark this .onnx model (at its own contract size) instead of random ResNet-18s.
     #[arg(long, value_name = "FILE", conflicts_with = "sizes")]
     model: Option<PathBuf>,
+    /// Seconds of the paced frame -> command loop for each rate and spinning setting
+    /// (CPU per frame and CPU %); 0 skips it.
+    #[arg(long, default_value_t = 4.0)]
+    paced_seconds: f64,
+    /// Frame rates of the paced loop, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [15u32, 30],
+          value_parser = clap::value_parser!(u32).range(1..=240))]
+    paced_fps: Vec<u32>,
+    /// Serve timing blocks of `--model` for `benches/peer_python_loop.py` (the JetBot-style
+    /// Python loop, interleaved): write the synthetic frames into DIR, then answer frame
+    /// counts on standard input with per-frame times as JSON lines.
+    #[arg(long, value_name = "DIR", requires = "model")]
+    peer: Option<PathBuf>,
     /// Also write the results to this file as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -155,14 +176,14 @@ fn stats(samples: &mut [f32]) -> Stats {
 
 /// Bytes and transactions seen by a [`NullBus`].
 #[derive(Debug, Default)]
-struct BusCounters {
+pub(super) struct BusCounters {
     bytes: AtomicU64,
     transactions: AtomicU64,
 }
 
 /// An I2C bus that accepts everything and only counts it (reads return zeros).
 #[derive(Debug, Clone, Default)]
-struct NullBus(Arc<BusCounters>);
+pub(super) struct NullBus(Arc<BusCounters>);
 
 impl ErrorType for NullBus {
     type Error = ErrorKind;
@@ -183,7 +204,7 @@ impl I2c for NullBus {
     }
 }
 
-fn null_hat(counters: &Arc<BusCounters>) -> anyhow::Result<MotorHat<NullBus>> {
+pub(super) fn null_hat(counters: &Arc<BusCounters>) -> anyhow::Result<MotorHat<NullBus>> {
     let settings = HatSettings::for_layout(HatLayout::Adafruit);
     MotorHat::init(NullBus(counters.clone()), settings, &mut StdDelay)
         .context("initialising the motor HAT driver on the null bus")
@@ -193,8 +214,9 @@ fn ort_err<R>(e: ort::Error<R>) -> anyhow::Error {
     anyhow::anyhow!("ONNX Runtime: {e}")
 }
 
-/// A plain session as `OrtPolicy` builds it (Level3, same intra-op threads, CPU).
-fn bare_session(env: &Environment, threads: usize, bytes: &[u8]) -> anyhow::Result<Session> {
+/// A plain session as `OrtPolicy` builds it (Level3, same intra-op threads, spinning off,
+/// CPU).
+fn bare_session(env: &Environment, threads: usize, path: &Path) -> anyhow::Result<Session> {
     let mut builder = Session::builder(env)
         .map_err(ort_err)?
         .with_optimization_level(GraphOptimizationLevel::Level3)
@@ -202,7 +224,11 @@ fn bare_session(env: &Environment, threads: usize, bytes: &[u8]) -> anyhow::Resu
     if threads > 0 {
         builder = builder.with_intra_threads(threads).map_err(ort_err)?;
     }
-    builder.commit_from_memory(bytes).map_err(ort_err)
+    for (key, value) in spinning_entries(false) {
+        builder = builder.with_config_entry(key, value).map_err(ort_err)?;
+    }
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    builder.commit_from_memory(&bytes).map_err(ort_err)
 }
 
 fn bare_run(session: &mut Session, inputs: &[SessionInputValue<'_>]) -> anyhow::Result<[f32; 2]> {
@@ -214,11 +240,10 @@ fn bare_run(session: &mut Session, inputs: &[SessionInputValue<'_>]) -> anyhow::
     }
 }
 
-/// The model file of one benchmarked size and its bytes; a random model's temporary file is
-/// removed on drop.
+/// The model file of one benchmarked size; a random model's temporary file is removed on
+/// drop. The bytes are not kept, so they do not count in the RSS figures.
 struct ModelFile {
     path: PathBuf,
-    bytes: Vec<u8>,
     temporary: bool,
 }
 
@@ -239,20 +264,20 @@ fn random_model(size: u32, weights: &Resnet18Weights) -> anyhow::Result<ModelFil
     let path =
         std::env::temp_dir().join(format!("jetpilot-bench-{}-{size}.onnx", std::process::id()));
     let file = ModelFile {
-        bytes: onnx::encode_model(&model),
         path,
         temporary: true,
     };
-    std::fs::write(&file.path, &file.bytes)
+    std::fs::write(&file.path, onnx::encode_model(&model))
         .with_context(|| format!("writing {}", file.path.display()))?;
     Ok(file)
 }
 
 fn user_model(path: &Path) -> anyhow::Result<ModelFile> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    if !path.is_file() {
+        bail!("{}: no such file", path.display());
+    }
     Ok(ModelFile {
         path: path.to_path_buf(),
-        bytes,
         temporary: false,
     })
 }
@@ -266,6 +291,8 @@ struct Rig<'a> {
     bare_inputs: [SessionInputValue<'a>; 1],
     pre: Preprocessor,
     policy: OrtPolicy,
+    /// The same model with spinning allowed, for the paced runs only.
+    spinning_policy: Option<OrtPolicy>,
     /// The law and HAT of the end-to-end path.
     law: SteeringLaw,
     hat: MotorHat<NullBus>,
@@ -298,15 +325,21 @@ impl Rig<'_> {
                 let wheels = self.law_alone.step([(i as f32).sin(), 0.3], DT_S).wheels;
                 self.hat_alone.drive(wheels)?;
             }
-            Kind::EndToEnd => self.frame_to_command(frame)?,
+            Kind::EndToEnd => self.frame_to_command(frame, false)?,
         }
         Ok(())
     }
 
-    /// The daemon's per-frame work (`drive::stages::infer` and the actuator), in one thread.
-    fn frame_to_command(&mut self, frame: &[u8]) -> anyhow::Result<()> {
+    /// The daemon's per-frame work (`drive::stages::infer` and the actuator), in one thread,
+    /// on the policy with spinning off or on.
+    fn frame_to_command(&mut self, frame: &[u8], spinning: bool) -> anyhow::Result<()> {
+        let policy = match (&mut self.spinning_policy, spinning) {
+            (_, false) => &mut self.policy,
+            (Some(p), true) => p,
+            (None, true) => bail!("the spinning session is not loaded"),
+        };
         let input = self.pre.run(FRAME_W, FRAME_H, frame)?;
-        let outputs = self.policy.infer(input)?;
+        let outputs = policy.infer(input)?;
         if outputs
             .iter()
             .any(|v| !v.is_finite() || v.abs() > self.max_abs_output)
@@ -378,6 +411,17 @@ struct SizeResult {
     transactions_per_command: f64,
     rejected: usize,
     outputs: [f32; 2],
+    paced: Vec<Paced>,
+    /// Before this size's sessions load (the process, its frames and what earlier sizes left).
+    memory_start: Option<Memory>,
+    /// Right after the policy's session loaded and ran, before any other session.
+    memory_policy: Option<Memory>,
+    /// At the end of the size.
+    memory_end: Option<Memory>,
+    /// Whether the peak was reset before this size (else it covers the earlier sizes too).
+    peak_reset: bool,
+    /// 1-minute load average at the start and at the end of the size.
+    load: [Option<f32>; 2],
 }
 
 impl SizeResult {
@@ -402,20 +446,37 @@ fn bench_model(
     model: &ModelFile,
     frames: &[Vec<u8>],
 ) -> anyhow::Result<SizeResult> {
+    let load_start = load_average();
+    let peak_reset = match usage::reset_peak_rss() {
+        Ok(()) => true,
+        Err(e) => {
+            tracing::warn!(error = %e, "peak RSS covers the whole run so far");
+            false
+        }
+    };
+    let memory_start = memory_or_warn();
     let fallback = ModelContract::default();
-    let policy = OrtPolicy::load(
-        &model.path,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            intra_threads: args.threads,
-            fallback_contract: &fallback,
-        },
-    )?;
+    let load = |allow_spinning| {
+        OrtPolicy::load(
+            &model.path,
+            &OrtOptions {
+                library: None,
+                providers: &[Provider::Cpu],
+                intra_threads: args.threads,
+                allow_spinning,
+                fallback_contract: &fallback,
+            },
+        )
+    };
+    let mut policy = load(false)?;
     let contract = policy.contract().clone();
     let s = contract.input_size;
     let mut pre = Preprocessor::new(&contract);
     let input = pre.run(FRAME_W, FRAME_H, &frames[0])?.to_vec();
+    for _ in 0..3 {
+        policy.infer(&input)?; // the first runs allocate ONNX Runtime's arena
+    }
+    let memory_policy = memory_or_warn();
     let tensor = TensorRef::from_array_view(([1usize, 3, s as usize, s as usize], &input[..]))
         .map_err(ort_err)?;
     let gains = SteeringGains {
@@ -426,10 +487,11 @@ fn bench_model(
     let mut rig = Rig {
         frames,
         input: &input,
-        bare: bare_session(env, args.threads, &model.bytes)?,
+        bare: bare_session(env, args.threads, &model.path)?,
         bare_inputs: ort::inputs![tensor],
         pre,
         policy,
+        spinning_policy: None,
         law: SteeringLaw::new(gains, contract.output),
         hat: null_hat(&Arc::default())?,
         law_alone: SteeringLaw::new(gains, OutputKind::Xy),
@@ -460,6 +522,17 @@ fn bench_model(
         &samples[Kind::EndToEnd as usize],
         &samples[Kind::Bare as usize],
     );
+    let paced = if args.paced_seconds > 0.0 {
+        rig.spinning_policy = Some(load(true)?);
+        tracing::info!("pacing {s}x{s} at {:?} fps", args.paced_fps);
+        let mut i = 0;
+        bench_cpu::measure(&args.paced_fps, args.paced_seconds, &mut |spinning| {
+            i += 1;
+            rig.frame_to_command(&frames[i % frames.len()], spinning)
+        })?
+    } else {
+        Vec::new()
+    };
     Ok(SizeResult {
         size: s,
         contract: contract.to_string(),
@@ -470,7 +543,29 @@ fn bench_model(
             / commands,
         rejected: rig.rejected,
         outputs,
+        paced,
+        memory_start,
+        memory_policy,
+        memory_end: memory_or_warn(),
+        peak_reset,
+        load: [load_start, load_average()],
     })
+}
+
+fn memory_or_warn() -> Option<Memory> {
+    usage::memory()
+        .inspect_err(|e| tracing::warn!(error = %e, "no memory figures"))
+        .ok()
+}
+
+/// The machine's 1-minute load average (`/proc/loadavg`), to read the numbers beside.
+fn load_average() -> Option<f32> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 /// The CPU as /proc/cpuinfo names it (`model name`, or `Hardware` / `Processor` on some
@@ -543,6 +638,14 @@ fn header(library: &Path, args: &BenchArgs) -> Header {
                  threads stop spin-waiting",
                 SWITCH_PAUSE.as_millis()
             ),
+            format!(
+                "paced loop: e2e once per tick at {:?} fps, spinning off and on, {} s each in {} interleaved \
+                 rounds; CPU from /proc/self/stat",
+                args.paced_fps,
+                args.paced_seconds,
+                bench_cpu::ROUNDS
+            ),
+            "peak RSS: VmHWM from /proc/self/status, reset before each size".to_string(),
         ],
     }
 }
@@ -551,7 +654,7 @@ fn print_header(h: &Header) {
     println!("jetpilot bench {}", env!("CARGO_PKG_VERSION"));
     println!("  ONNX Runtime  {} ({})", h.version, h.library);
     println!(
-        "  session       CPU provider, graph optimisation Level3, intra-op threads: {}",
+        "  session       CPU provider, graph optimisation Level3, spinning off, intra-op threads: {}",
         h.threads
     );
     println!("  CPU           {}", h.cpu);
@@ -604,6 +707,28 @@ fn print_result(r: &SizeResult) {
     println!(
         "  e2e - bare run paired per round (median of block-median differences): {:.3} ms",
         r.paired_overhead
+    );
+    bench_cpu::print(&r.paced);
+    let mib = |m: Option<Memory>| {
+        m.map_or_else(|| "unknown".into(), |m| format!("{:.1} MiB", m.peak_mib()))
+    };
+    println!(
+        "  peak RSS{}: {} with the policy's session loaded and run; {} at the end (reference and spinning sessions too)",
+        if r.peak_reset { "" } else { " (since start)" },
+        mib(r.memory_policy),
+        mib(r.memory_end)
+    );
+    if let Some(m) = r.memory_start {
+        println!(
+            "  (RSS before this size's sessions: {:.1} MiB, the process, its frames and what earlier sizes left)",
+            m.rss_mib()
+        );
+    }
+    let load = |l: Option<f32>| l.map_or_else(|| "?".into(), |l| format!("{l:.2}"));
+    println!(
+        "  load average (1 min): {} at the start of this size, {} at the end",
+        load(r.load[0]),
+        load(r.load[1])
     );
 }
 
@@ -666,6 +791,22 @@ fn json(h: &Header, args: &BenchArgs, results: &[SizeResult]) -> String {
             json_num(r.outputs[0]),
             json_num(r.outputs[1])
         ));
+        records.extend(bench_cpu::json_records(r.size, &r.paced));
+        let mib = |m: Option<Memory>, f: fn(&Memory) -> f64| {
+            m.map_or_else(|| "null".into(), |m| format!("{:.2}", f(&m)))
+        };
+        let load = |l: Option<f32>| l.map_or_else(|| "null".into(), |l| l.to_string());
+        records.push(format!(
+            "    {{\"size\": {}, \"measurement\": \"memory\", \"rss_start_mib\": {}, \"peak_rss_policy_mib\": {}, \"peak_rss_mib\": {}, \"rss_end_mib\": {}, \"peak_reset_before_size\": {}, \"load_1min_start\": {}, \"load_1min_end\": {}}}",
+            r.size,
+            mib(r.memory_start, Memory::rss_mib),
+            mib(r.memory_policy, Memory::peak_mib),
+            mib(r.memory_end, Memory::peak_mib),
+            mib(r.memory_end, Memory::rss_mib),
+            r.peak_reset,
+            load(r.load[0]),
+            load(r.load[1])
+        ));
     }
     format!(
         "{{\n  \"jetpilot\": {},\n  \"onnxruntime\": {},\n  \"library\": {},\n  \"cpu\": {},\n  \"intra_threads\": {},\n  \"iterations\": {},\n  \"warmup\": {},\n  \"method\": {},\n  \"results\": [\n{}\n  ]\n}}\n",
@@ -689,6 +830,9 @@ pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
     let frames: Vec<Vec<u8>> = (0..FRAMES)
         .map(|i| render_road(FRAME_W, FRAME_H, sample_view(i, FRAMES)))
         .collect();
+    if let (Some(dir), Some(model)) = (&args.peer, &args.model) {
+        return super::bench_peer::serve(model, args.threads, &frames, dir, &ort_version(library));
+    }
     let models = match &args.model {
         Some(path) => vec![user_model(path)?],
         None => {

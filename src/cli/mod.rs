@@ -2,6 +2,8 @@
 //! subcommand lives in its own file; errors are reported here, once, with their causes.
 
 mod bench;
+mod bench_cpu;
+mod bench_peer;
 mod bench_sim;
 mod camera;
 mod image;

@@ -81,6 +81,7 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
             library: None,
             providers: &[Provider::Cpu],
             intra_threads: args.threads,
+            allow_spinning: false,
             fallback_contract: &fallback,
         },
     )?;

@@ -25,6 +25,7 @@ pub mod setup;
 pub mod stages;
 pub mod stats;
 pub mod teleop;
+pub mod usage;
 pub mod watchdog;
 
 use std::future::Future;

@@ -49,6 +49,7 @@ pub fn load_policy(cfg: &Config, model: Option<&Path>) -> Result<OrtPolicy, Poli
             library: cfg.runtime.library.as_deref(),
             providers: &cfg.runtime.providers,
             intra_threads: cfg.runtime.intra_threads,
+            allow_spinning: cfg.runtime.allow_spinning,
             fallback_contract: &fallback,
         },
     )

@@ -1,5 +1,11 @@
 //! [`OrtPolicy`]: a model file run by ONNX Runtime, with its contract and shapes checked
 //! at load and the execution provider actually in use logged.
+//!
+//! Spinning is off unless asked for ([`OrtOptions::allow_spinning`], `runtime.allow_spinning`):
+//! by default ONNX Runtime's intra- and inter-op worker threads busy-wait for more work after
+//! every run. The daemon runs one frame every 33-67 ms, so the threads would spin through
+//! most of that gap, burning a core of a battery robot and taking cores from anything else
+//! running (the camera decode, a second session).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -21,6 +27,9 @@ pub struct OrtOptions<'a> {
     pub providers: &'a [Provider],
     /// Threads inside one operator (0: ONNX Runtime decides).
     pub intra_threads: usize,
+    /// Let the worker threads spin-wait between runs (ONNX Runtime's own default); off,
+    /// they block as soon as a run ends. See [`spinning_entries`].
+    pub allow_spinning: bool,
     /// The contract for a model that carries none in its metadata.
     pub fallback_contract: &'a ModelContract,
 }
@@ -61,6 +70,11 @@ impl OrtPolicy {
         if opts.intra_threads > 0 {
             builder = builder
                 .with_intra_threads(opts.intra_threads)
+                .map_err(|e| PolicyError::Inference(e.to_string()))?;
+        }
+        for (key, value) in spinning_entries(opts.allow_spinning) {
+            builder = builder
+                .with_config_entry(key, value)
                 .map_err(|e| PolicyError::Inference(e.to_string()))?;
         }
         let mut in_use = None;
@@ -137,6 +151,17 @@ impl OrtPolicy {
     pub fn contract_source(&self) -> ContractSource {
         self.contract_source
     }
+}
+
+/// The session config entries that allow or forbid spinning: ONNX Runtime's keys for
+/// `SessionOptions.add_session_config_entry` (the same as `ort`'s `with_intra_op_spinning`
+/// and `with_inter_op_spinning`). Both are "1" in ONNX Runtime when unset.
+pub fn spinning_entries(allow: bool) -> [(&'static str, &'static str); 2] {
+    let value = if allow { "1" } else { "0" };
+    [
+        ("session.intra_op.allow_spinning", value),
+        ("session.inter_op.allow_spinning", value),
+    ]
 }
 
 fn read_metadata(session: &Session) -> BTreeMap<String, String> {
@@ -269,5 +294,22 @@ impl Policy for OrtPolicy {
 
     fn describe(&self) -> String {
         format!("{} on ONNX Runtime ({})", self.path, self.provider.as_str())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spinning_entries_use_onnx_runtime_keys() {
+        assert_eq!(
+            spinning_entries(false),
+            [
+                ("session.intra_op.allow_spinning", "0"),
+                ("session.inter_op.allow_spinning", "0")
+            ]
+        );
+        assert!(spinning_entries(true).iter().all(|(_, v)| *v == "1"));
     }
 }

@@ -200,6 +200,7 @@ pub fn load_ort(path: &Path) -> OrtPolicy {
             library: None,
             providers: &[Provider::Cpu],
             intra_threads: 1,
+            allow_spinning: false,
             fallback_contract: &ModelContract::default(),
         },
     )
