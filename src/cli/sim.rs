@@ -196,7 +196,10 @@ pub struct WallShare {
 
 struct Driven {
     result: EvalResult,
-    trace: Vec<Pose2>,
+    /// (simulated seconds, pose), ten a second.
+    trace: Vec<(f64, Pose2)>,
+    /// When each intervention happened, in the order of the world's `intervention_poses`.
+    intervention_times: Vec<f64>,
     strip: Vec<Vec<u8>>,
 }
 
@@ -234,6 +237,7 @@ fn drive(
         ),
     };
     let mut trace = Vec::new();
+    let mut intervention_times = Vec::new();
     let mut strip = Vec::new();
     let size = (cfg.sim.camera.width, cfg.sim.camera.height);
     let settings = cfg.sim.loop_settings(seconds, cfg);
@@ -247,7 +251,10 @@ fn drive(
         size,
         |step| {
             if step.seq % every == 0 {
-                trace.push(step.pose);
+                trace.push((step.time.as_secs_f64(), step.pose));
+            }
+            if step.score.intervention {
+                intervention_times.push(step.time.as_secs_f64());
             }
             if let Some(n) = strip_every
                 && step.seq % n == 0
@@ -295,6 +302,7 @@ fn drive(
         Driven {
             result,
             trace,
+            intervention_times,
             strip,
         },
     ))
@@ -327,7 +335,16 @@ fn print_result(r: &EvalResult) {
     );
 }
 
-fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()> {
+/// The mat from above with the driven path and the interventions. With random layouts,
+/// the road drawn is the last one, so only what happened on it is shown.
+fn write_trace(rig: &SimRig, driven: &Driven, path: &Path) -> anyhow::Result<()> {
+    let since = rig.world.layout_drawn_at_s().unwrap_or(0.0);
+    if since > 0.0 {
+        println!(
+            "{}: the last random layout, from {since:.1} s on (each layout lasts sim.layouts.every_s)",
+            path.display()
+        );
+    }
     let texture = jetpilot::sim::render::MatTexture::new(
         &rig.world.track.paint(),
         rig.world.track.mat_size(),
@@ -335,14 +352,22 @@ fn write_trace(rig: &SimRig, trace: &[Pose2], path: &Path) -> anyhow::Result<()>
         [96, 120, 92],
         [150, 130, 110],
     )?;
+    let poses: Vec<Pose2> = driven
+        .trace
+        .iter()
+        .filter(|(t, _)| *t >= since)
+        .map(|(_, p)| *p)
+        .collect();
     let marks: Vec<(Pose2, [u8; 3])> = rig
         .world
         .stats
         .intervention_poses
         .iter()
-        .map(|p| (*p, [220, 30, 30]))
+        .zip(&driven.intervention_times)
+        .filter(|(_, t)| **t >= since)
+        .map(|(p, _)| (*p, [220, 30, 30]))
         .collect();
-    let (w, h, rgb) = top_down(&texture, trace, &marks);
+    let (w, h, rgb) = top_down(&texture, &poses, &marks);
     write_png(path, w, h, &rgb)?;
     Ok(())
 }
@@ -397,7 +422,7 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         if !driven.strip.is_empty() {
             write_strip(&dir.join("frames.png"), &driven.strip, (w, h))?;
         }
-        write_trace(&rig, &driven.trace, &dir.join("trace.png"))?;
+        write_trace(&rig, &driven, &dir.join("trace.png"))?;
         println!("wrote {0}/frames.png and {0}/trace.png", dir.display());
         if let Some(folder) = &args.real {
             write_contact_sheet(dir, folder, &driven.strip, (w, h))?;
@@ -533,7 +558,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
         std::fs::write(p, text + "\n").with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(p) = &args.png {
-        write_trace(&rig, &driven.trace, p)?;
+        write_trace(&rig, &driven, p)?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -221,6 +221,12 @@ impl World {
         }
     }
 
+    /// With `[sim.layouts]` on: when (simulated seconds) the road now under the robot was
+    /// drawn.
+    pub fn layout_drawn_at_s(&self) -> Option<f64> {
+        self.layouts.as_ref().map(|l| l.drawn_at_s)
+    }
+
     /// The appearance randomiser, when on.
     pub fn appearance(&self) -> Option<&Appearance> {
         self.appearance.as_ref()
