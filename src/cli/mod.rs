@@ -75,7 +75,7 @@ enum Command {
     /// command end to end, beside a bare ONNX Runtime run.
     Bench(bench::BenchArgs),
     /// Drive in the replayed-frame simulator: the daemon's own per-frame work and motor
-    /// driver on a virtual PCA9685, on a simulated clock.
+    /// driver on a virtual PCA9685 (or H-bridge), on a simulated clock.
     Sim(sim::SimArgs),
     /// Score a model with the paper's protocol: a 600 s simulated test, interventions,
     /// autonomy value, reward count, laps, mean speed.
