@@ -317,11 +317,11 @@ fn drv8833_lowers_one_input_before_raising_the_other() {
     assert_eq!(log.take(), ev(&["L.IN1 400", "R.IN2 400"]));
     b.drive(WheelCommand::new(-0.4, -0.4)).unwrap();
     assert_eq!(log.take(), ev(&["L.IN1 0", "L.IN2 400"]));
-    // A stop writes every input.
+    // A stop writes every input, the one that was driving first.
     b.stop().unwrap();
     assert_eq!(
         log.take(),
-        ev(&["L.IN1 0", "L.IN2 0", "R.IN1 0", "R.IN2 0"])
+        ev(&["L.IN2 0", "L.IN1 0", "R.IN2 0", "R.IN1 0"])
     );
 }
 
@@ -673,4 +673,67 @@ fn l298n_on_a_fake_sysfs_pwm_tree() {
             ("0".into(), "0".into())
         );
     }
+}
+
+/// A brake that cannot be completed falls back to coasting: with IN1 stuck, an L298N
+/// brake must not raise EN to 100 % (IN1 high + EN 100 % is full forward).
+#[test]
+fn a_failed_brake_coasts_instead_of_raising_anything() {
+    let log = Log::default();
+    let mut b = HBridge::new(
+        BridgeChip::L298n,
+        StopMode::Brake,
+        dir_pwm(&log, "L", MotorTrim::default()),
+        dir_pwm(&log, "R", MotorTrim::default()),
+        None,
+        "test".into(),
+    )
+    .unwrap();
+    b.drive(WheelCommand::new(0.4, 0.4)).unwrap();
+    log.take();
+    log.failing.lock().unwrap().push("L.IN1".into());
+    assert!(b.stop().is_err());
+    let events = log.take();
+    assert_eq!(
+        events,
+        ev(&[
+            "L.PWM 0", // brake: speed off, IN1 fails: give up the brake ...
+            "L.PWM 0",
+            "L.IN2 0", // ... and coast, lowering everything else
+            "R.PWM 0",
+            "R.IN1 0",
+            "R.IN2 0",
+            "R.PWM 1000", // the right motor brakes
+        ])
+    );
+    assert!(!events.contains(&"L.PWM 1000".to_string()));
+    log.failing.lock().unwrap().clear();
+}
+
+/// A DRV8833 braking out of reverse raises the input already driving first, so it never
+/// passes through forward.
+#[test]
+fn drv8833_brakes_out_of_reverse_without_driving_forward() {
+    let log = Log::default();
+    let mut b = HBridge::new(
+        BridgeChip::Drv8833,
+        StopMode::Brake,
+        in_pwm(&log, "L"),
+        in_pwm(&log, "R"),
+        None,
+        "test".into(),
+    )
+    .unwrap();
+    b.drive(WheelCommand::new(-0.4, 0.4)).unwrap();
+    log.take();
+    b.stop().unwrap();
+    assert_eq!(
+        log.take(),
+        ev(&[
+            "L.IN2 1000",
+            "L.IN1 1000", // left was reversing: IN2 first
+            "R.IN1 1000",
+            "R.IN2 1000", // right was going forward: IN1 first
+        ])
+    );
 }

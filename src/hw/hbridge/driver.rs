@@ -122,10 +122,14 @@ impl Writes {
 /// Writes the inputs from `from` to `to`, only what changes (everything when `from` is
 /// `None`): when the direction pins change, the PWM goes to 0 first and a pin that falls is
 /// written before one that rises; on PWM inputs, the falling duty before the rising one.
+///
+/// `order` is the state the inputs are believed to be in (for the falling-before-rising
+/// order when `from` is `None` because every input must be written).
 fn transition<P: OutputPin, W: SetDutyCycle>(
     wiring: &mut MotorWiring<P, W>,
     max: [u16; 2],
     from: Option<BridgeState>,
+    order: Option<BridgeState>,
     to: BridgeState,
     w: &mut Writes,
 ) -> Option<()> {
@@ -165,13 +169,17 @@ fn transition<P: OutputPin, W: SetDutyCycle>(
                 Some(BridgeState::InPwm { in1, in2 }) => Some((in1, in2)),
                 _ => None,
             };
+            let now = match from.or(order) {
+                Some(BridgeState::InPwm { in1, in2 }) => (in1, in2),
+                _ => (0.0, 0.0),
+            };
             let mut inputs = [
-                (&mut *in1, max[0], a, old.map(|o| o.0)),
-                (&mut *in2, max[1], b, old.map(|o| o.1)),
+                (&mut *in1, max[0], a, old.map(|o| o.0), a - now.0),
+                (&mut *in2, max[1], b, old.map(|o| o.1), b - now.1),
             ];
-            inputs
-                .sort_by(|x, y| (x.2 - x.3.unwrap_or(0.0)).total_cmp(&(y.2 - y.3.unwrap_or(0.0))));
-            for (pin, m, duty, old) in inputs.iter_mut() {
+            // The input whose duty falls (or rises least) first.
+            inputs.sort_by(|x, y| x.4.total_cmp(&y.4));
+            for (pin, m, duty, old, _) in inputs.iter_mut() {
                 if *old != Some(*duty) {
                     w.take(set_duty(pin, *m, *duty))?;
                 }
@@ -196,10 +204,15 @@ where
         self.write(self.last, to, false)
     }
 
-    /// Writes every input to the stopped state `to`, going on past a failed write (a PWM
-    /// that cannot be zeroed still gets its direction pins set).
-    fn force_stop(&mut self, to: BridgeState) -> Result<()> {
-        self.write(None, to, true)
+    /// Writes every input to the stopped state `to`. If a write fails, falls back to
+    /// `coast` written best-effort: every input lowered, going on past failures, nothing
+    /// raised (a brake that raises an input after a failed write could drive the motor).
+    fn force_stop(&mut self, to: BridgeState, coast: BridgeState) -> Result<()> {
+        let first = self.write(None, to, false);
+        if first.is_err() {
+            let _ = self.write(None, coast, true);
+        }
+        first
     }
 
     fn write(
@@ -208,13 +221,14 @@ where
         to: BridgeState,
         best_effort: bool,
     ) -> Result<()> {
+        let order = self.last;
         // Forget the state first: if a write fails half-way, the next call writes all.
         self.last = None;
         let mut w = Writes {
             best_effort,
             first: Ok(()),
         };
-        let _ = transition(&mut self.wiring, self.max, from, to, &mut w);
+        let _ = transition(&mut self.wiring, self.max, from, order, to, &mut w);
         if w.first.is_ok() {
             self.last = Some(to);
         }
@@ -313,9 +327,10 @@ where
     /// the first fails; the first error is returned.
     fn stop_all(&mut self) -> Result<()> {
         let to = stopped_state(self.chip, self.stop_mode);
+        let coast = stopped_state(self.chip, StopMode::Coast);
         let mut first = Ok(());
         for m in &mut self.motors {
-            let r = m.force_stop(to);
+            let r = m.force_stop(to, coast);
             if first.is_ok() {
                 first = r;
             }

@@ -3,8 +3,8 @@
 //! jetson-io, and the Raspberry Pi's with `dtoverlay=pwm-2chan`.
 //!
 //! Opening a channel exports it if it is not yet (and waits up to a second for udev to
-//! hand the new files to the `gpio` group), lowers a leftover duty, sets the period, a
-//! duty of 0 and enables the output. Dropping it writes a duty of 0 and disables it. The
+//! hand the new files to the `gpio` group), lowers a leftover duty, disables the output,
+//! sets the polarity back to normal, sets the period, a duty of 0 and enables the output. Dropping it writes a duty of 0 and disables it. The
 //! root folder is a parameter, so tests run against a fake tree in a temporary directory.
 
 use std::path::{Path, PathBuf};
@@ -101,6 +101,14 @@ impl SysfsPwm {
         let pwm = Self { dir, period_ns };
         // A period shorter than a leftover duty is refused by the kernel: lower it first.
         write(&pwm.dir.join("duty_cycle"), 0)?;
+        write(&pwm.dir.join("enable"), 0)?;
+        // A channel another program left "inversed" would be fully on at duty 0.
+        let polarity = pwm.dir.join("polarity");
+        if let Ok(p) = std::fs::read_to_string(&polarity)
+            && p.trim() != "normal"
+        {
+            write(&polarity, "normal")?;
+        }
         write(&pwm.dir.join("period"), period_ns)?;
         write(&pwm.dir.join("duty_cycle"), 0)?;
         write(&pwm.dir.join("enable"), 1)?;
@@ -189,6 +197,14 @@ mod tests {
         pwm.set_duty_cycle_fraction(1, 4).unwrap();
         // embedded-hal's fraction: 65535 / 4 = 16383 ticks; 16383 / 65535 of 50 us, floored.
         assert_eq!(read(t.path(), "duty_cycle"), "12499");
+    }
+
+    #[test]
+    fn an_inversed_channel_is_set_back_to_normal_polarity() {
+        let t = fake_tree();
+        std::fs::write(t.path().join("pwmchip0/pwm0/polarity"), "inversed\n").unwrap();
+        let _pwm = SysfsPwm::open(t.path(), 0, 0, 1000.0).unwrap();
+        assert_eq!(read(t.path(), "polarity"), "normal");
     }
 
     #[test]
