@@ -307,6 +307,13 @@ fn a_failure_after_the_write_puts_the_image_back_byte_for_byte() {
     let after = std::fs::read(&i.opts.image).unwrap();
     let differing = before.iter().zip(&after).filter(|(a, b)| a != b).count();
     assert_eq!(differing, 0, "{differing} bytes differ after the undo");
+    let undo = i
+        .opts
+        .image
+        .parent()
+        .unwrap()
+        .join(".jetbot.img.jetpilot-undo");
+    assert!(!undo.exists(), "the undo file is removed once used");
 }
 
 /// Each bad input is refused with an error naming the file and the reason, and the image
@@ -406,12 +413,25 @@ fn bad_inputs_are_refused_without_touching_the_image() {
     o.model = common::write_model(other.path(), 32, 1);
     refused(&o, &["partition 1 (APP) is full", "MiB are free"]);
 
+    // A journal that was never replayed (a card pulled without unmounting).
+    let mut o = base.opts.clone();
+    o.image = dir.join("dirty.img");
+    let mut dirty = image_bytes.clone();
+    dirty[(OFFSET + 1024 + 0x60) as usize] |= 0x4;
+    std::fs::write(&o.image, &dirty).unwrap();
+    refused(&o, &["dirty.img", "journal needs recovery", "e2fsck -fy"]);
+
+    let mut o = base.opts.clone();
+    o.image = dir.join("what?.img");
+    std::fs::copy(&base.opts.image, &o.image).unwrap();
+    refused(&o, &["what?.img", "rename it"]);
+
     assert!(std::fs::read(&base.opts.image).unwrap() == image_bytes);
 }
 
 /// From the command line, as a user would: a JetBot image downloaded as a .zip is unpacked
-/// beside the archive (left unchanged) and installed into; a second run refuses to unpack
-/// over the first and says which file to use.
+/// beside the archive (left unchanged) and installed into; a second run uses that image
+/// again; a dry run does not unpack.
 #[test]
 fn the_cli_unpacks_a_zipped_download_and_installs_into_it() {
     let i = inputs(96);
@@ -459,11 +479,21 @@ fn the_cli_unpacks_a_zipped_download_and_installs_into_it() {
         dump(&img, "/etc/jetpilot/jetpilot.toml", dir),
         KITS[3].1.as_bytes()
     );
+    // Again: the unpacked image is used as it is, and installed into again.
     let out = jp().output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        !out.status.success() && err.contains("exists already"),
+        out.status.success() && err.contains("unpacked from"),
         "{err}"
     );
-    assert!(err.contains(&format!("--image {}", img.display())), "{err}");
+    fsck_clean(&img);
+    // A dry run on the archive with no image unpacked yet says why it does not unpack.
+    std::fs::remove_file(&img).unwrap();
+    let out = jp().arg("--dry-run").output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("does not unpack"),
+        "{err}"
+    );
+    assert!(!img.exists());
 }

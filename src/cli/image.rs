@@ -76,14 +76,34 @@ pub fn main(cmd: ImageCommand) -> anyhow::Result<ExitCode> {
             (format!("config/{name}.toml"), text.to_string())
         }
     };
-    // A compressed download is unpacked beside itself first; the archive stays as it is.
+    // A compressed download is unpacked beside itself first (the archive stays as it is);
+    // an image unpacked by an earlier run is used again.
     let head = jetpilot::image::inputs::head(&a.image, 16)?;
     let image = match jetpilot::image::inputs::compression(&head) {
         Some((kind, _)) => {
-            eprintln!("unpacking {} ({kind}) ...", a.image.display());
-            let img = jetpilot::image::unpack::unpack(&a.image, kind)?;
-            eprintln!("unpacked to {}", img.display());
-            img
+            let target = jetpilot::image::unpack::target(&a.image, kind)?;
+            if target.exists() {
+                eprintln!(
+                    "using {}, unpacked from {} before",
+                    target.display(),
+                    a.image.display()
+                );
+                target
+            } else if a.dry_run {
+                anyhow::bail!(
+                    "{} is {kind}-compressed: a dry run does not unpack it (that writes the whole \
+                     image, as {}); run without --dry-run, or unpack it first",
+                    a.image.display(),
+                    target.display()
+                );
+            } else {
+                eprintln!(
+                    "unpacking {} ({kind}) to {} ...",
+                    a.image.display(),
+                    target.display()
+                );
+                jetpilot::image::unpack::unpack(&a.image, kind)?
+            }
         }
         None => a.image.clone(),
     };

@@ -84,8 +84,17 @@ pub fn parse(
             "GPT entries ({count} of {entry_size} bytes) are invalid"
         )));
     }
+    let first_usable = u64_at(hdr, 40);
+    let table_at = entries_lba
+        .checked_mul(SECTOR)
+        .filter(|&at| at.saturating_add((count * entry_size) as u64) <= image_len)
+        .ok_or_else(|| {
+            not_image(format!(
+                "GPT entries at LBA {entries_lba} lie outside the image"
+            ))
+        })?;
     let mut table = vec![0u8; count * entry_size];
-    read_at(entries_lba * SECTOR, &mut table).map_err(|e| not_image(e.to_string()))?;
+    read_at(table_at, &mut table).map_err(|e| not_image(e.to_string()))?;
     if crc32fast::hash(&table) != u32_at(hdr, 88) {
         return Err(not_image(
             "the GPT partition entries' CRC32 does not match (a damaged image?)".into(),
@@ -107,9 +116,16 @@ pub fn parse(
             first_lba: u64_at(e, 32),
             last_lba: u64_at(e, 40),
         };
-        if p.last_lba < p.first_lba || (p.last_lba + 1) * SECTOR > image_len {
+        let end = p
+            .last_lba
+            .checked_add(1)
+            .and_then(|n| n.checked_mul(SECTOR));
+        if p.last_lba < p.first_lba
+            || p.first_lba < first_usable
+            || end.is_none_or(|end| end > image_len)
+        {
             return Err(not_image(format!(
-                "partition {} ({}) runs past the end of the image: a truncated download?",
+                "partition {} ({}) lies outside the image's usable sectors: a truncated download?",
                 p.number, p.name
             )));
         }
@@ -166,6 +182,7 @@ mod tests {
         h[0..8].copy_from_slice(b"EFI PART");
         h[8..12].copy_from_slice(&0x0001_0000u32.to_le_bytes());
         h[12..16].copy_from_slice(&92u32.to_le_bytes());
+        h[40..48].copy_from_slice(&34u64.to_le_bytes());
         h[72..80].copy_from_slice(&2u64.to_le_bytes());
         h[80..84].copy_from_slice(&(count as u32).to_le_bytes());
         h[84..88].copy_from_slice(&128u32.to_le_bytes());

@@ -60,6 +60,13 @@ fn file_size(path: &Path) -> Result<u64, ImageError> {
 /// The root partition and its filesystem, after checking the image.
 fn open_image(opts: &InstallOptions) -> Result<(gpt::Partition, ext4::Superblock), ImageError> {
     let path = opts.image.display().to_string();
+    if path.contains('?') {
+        // e2fsprogs reads `FILE?offset=N`: a `?` in the name would open another file.
+        return Err(input_err(
+            &opts.image,
+            "the image's path has a `?`, which e2fsprogs takes for options: rename it",
+        ));
+    }
     let len = file_size(&opts.image)?;
     let head = inputs::head(&opts.image, 16)?;
     if let Some((kind, hint)) = inputs::compression(&head) {
@@ -81,7 +88,7 @@ fn open_image(opts: &InstallOptions) -> Result<(gpt::Partition, ext4::Superblock
         .and_then(|_| f.read_exact(&mut sb))
         .map_err(|e| input_err(&opts.image, e.to_string()))?;
     let name = format!("{} ({})", part.number, part.name);
-    let sb = ext4::parse(&sb, &path, &name)?;
+    let sb = ext4::parse(&sb, &path, &name, part.offset())?;
     Ok((part, sb))
 }
 
@@ -226,6 +233,18 @@ fn commands(
     (cmds, report)
 }
 
+/// `DIR/.NAME.jetpilot-undo` for the image `DIR/NAME`.
+fn undo_path(image: &Path) -> PathBuf {
+    let name = image
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "image".into());
+    image
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join(format!(".{name}.jetpilot-undo"))
+}
+
 /// The partition's first 4 KiB: boot block and primary superblock, which e2undo does not
 /// restore (debugfs writes the superblock around its undo manager).
 fn read_head(image: &Path, offset: u64) -> std::io::Result<Vec<u8>> {
@@ -265,13 +284,28 @@ fn verify(fs: &Fs, plan: &Plan, sources: &[PathBuf], tmp: &Path) -> Result<(), S
         }
         let back = tmp.join(format!("back-{i}"));
         fs.dump(&f.dest, &back).map_err(|e| e.to_string())?;
-        let same = std::fs::read(&back).ok() == std::fs::read(src).ok();
+        let read = |p: &Path| std::fs::read(p).map_err(|e| format!("{}: {e}", p.display()));
+        let same = read(&back)? == read(src)?;
         let _ = std::fs::remove_file(&back);
         if !same {
             return Err(format!(
                 "{} reads back different from {}",
                 f.dest,
                 src.display()
+            ));
+        }
+    }
+    for l in &plan.links {
+        let (parent, name) = split(&l.dest);
+        let ok = listing
+            .get(parent)
+            .and_then(|e| e.as_ref())
+            .and_then(|es| es.iter().find(|e| e.name == name))
+            .is_some_and(|e| e.mode & 0o170000 == 0o120000 && e.size == l.target.len() as u64);
+        if !ok {
+            return Err(format!(
+                "{} is not a symlink to {} after the write",
+                l.dest, l.target
             ));
         }
     }
@@ -297,6 +331,21 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
         .map(|f| f.size.div_ceil(bs) * bs + bs)
         .sum::<u64>()
         + (new_dirs + plan.links.len() as u64) * bs;
+    // Files installed before are removed first: their blocks come back (a second install
+    // fits where the first did).
+    let replaced: u64 = plan
+        .files
+        .iter()
+        .filter_map(|f| {
+            let (parent, name) = split(&f.dest);
+            existing
+                .get(parent)
+                .and_then(|e| e.as_ref())
+                .and_then(|es| es.iter().find(|e| e.name == name && !e.is_dir()))
+                .map(|e| e.size.div_ceil(bs) * bs)
+        })
+        .sum();
+    let needed = needed.saturating_sub(replaced);
     let part_name = format!("{} ({})", part.number, part.name);
     if needed > sb.free_bytes()
         || plan.files.len() as u64 + new_dirs + 2 > u64::from(sb.free_inodes)
@@ -343,9 +392,26 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
     if opts.dry_run {
         return Ok(report);
     }
+    // An image that is already damaged is reported as such, not as a failed write.
+    fs.fsck().map_err(|e| ImageError::Unclean {
+        path: opts.image.display().to_string(),
+        partition: report.partition.clone(),
+        offset: part.offset(),
+        what: format!("e2fsck -fn finds problems before the install: {e}"),
+    })?;
     let head =
         read_head(&opts.image, part.offset()).map_err(|e| input_err(&opts.image, e.to_string()))?;
-    let undo = tmp.path().join("install.e2undo");
+    // Beside the image, so an interrupted install (power cut, kill) can still be undone.
+    let undo = undo_path(&opts.image);
+    let _ = std::fs::remove_file(&undo);
+    tracing::info!(
+        undo = %undo.display(),
+        "writing; if this is interrupted, undo with `e2undo -o {} {} {}` and restore the \
+         partition's first 4 KiB",
+        part.offset(),
+        undo.display(),
+        opts.image.display()
+    );
     let written = fs
         .run(&cmds, Some(&undo))
         .map_err(|e| e.to_string())
@@ -360,18 +426,17 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
             match fs.undo(&undo).map_err(|e| e.to_string()).and_then(|_| {
                 write_head(&opts.image, part.offset(), &head).map_err(|e| e.to_string())
             }) {
-                Ok(()) => "the image was put back as it was".to_string(),
-                Err(e) => {
-                    let kept = std::env::temp_dir().join("jetpilot-install.e2undo");
-                    let _ = std::fs::copy(&undo, &kept);
-                    format!(
-                        "undoing failed too ({e}); the undo file is {}: `e2undo -o {} {} {}`",
-                        kept.display(),
-                        part.offset(),
-                        kept.display(),
-                        opts.image.display()
-                    )
+                Ok(()) => {
+                    let _ = std::fs::remove_file(&undo);
+                    "the image was put back as it was".to_string()
                 }
+                Err(e) => format!(
+                    "undoing failed too ({e}); the undo file is {}: `e2undo -o {} {} {}`",
+                    undo.display(),
+                    part.offset(),
+                    undo.display(),
+                    opts.image.display()
+                ),
             };
         return Err(ImageError::Write {
             path: opts.image.display().to_string(),
@@ -379,6 +444,7 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
             outcome,
         });
     }
+    let _ = std::fs::remove_file(&undo);
     report
         .actions
         .push("verified: every file reads back the same; e2fsck -fn clean".into());

@@ -40,6 +40,15 @@ pub enum ImageError {
     #[error("{path}: partition {partition} is not an ext4 filesystem")]
     NotExt4 { path: String, partition: String },
     #[error(
+        "{path}: partition {partition}: {what}; repair it first: `e2fsck -fy '{path}?offset={offset}'`"
+    )]
+    Unclean {
+        path: String,
+        partition: String,
+        offset: u64,
+        what: String,
+    },
+    #[error(
         "{path}: partition {partition} is full: the install needs {needed_mib:.1} MiB, {free_mib:.1} MiB are free (grow it with resize2fs, or free space)"
     )]
     Full {

@@ -188,6 +188,21 @@ pub fn wifi_keyfile(ssid: &str, psk: &str) -> Result<String, String> {
     if !(8..=63).contains(&psk.len()) || psk.contains(['\n', '\r']) {
         return Err("Wi-Fi password: WPA needs 8 to 63 characters on one line".into());
     }
+    if ssid.contains(';') || ssid.trim() != ssid {
+        return Err(format!(
+            "Wi-Fi SSID {ssid:?}: a `;` or spaces at either end are not supported here; \
+             add the network with nmcli on the robot instead"
+        ));
+    }
+    // NetworkManager's keyfiles are GLib key files: `\` escapes, a leading space is `\s`.
+    let escape = |v: &str| {
+        let e = v.replace('\\', "\\\\");
+        match e.strip_prefix(' ') {
+            Some(rest) => format!("\\s{rest}"),
+            None => e,
+        }
+    };
+    let (ssid_v, psk_v) = (escape(ssid), escape(psk));
     let h = crc32fast::hash(ssid.as_bytes());
     let g = crc32fast::hash(format!("jetpilot-wifi:{ssid}").as_bytes());
     let uuid = format!(
@@ -201,8 +216,8 @@ pub fn wifi_keyfile(ssid: &str, psk: &str) -> Result<String, String> {
     );
     Ok(format!(
         "[connection]\nid=jetpilot-wifi\nuuid={uuid}\ntype=wifi\nautoconnect=true\n\n\
-         [wifi]\nmode=infrastructure\nssid={ssid}\n\n\
-         [wifi-security]\nkey-mgmt=wpa-psk\npsk={psk}\n\n\
+         [wifi]\nmode=infrastructure\nssid={ssid_v}\n\n\
+         [wifi-security]\nkey-mgmt=wpa-psk\npsk={psk_v}\n\n\
          [ipv4]\nmethod=auto\n\n[ipv6]\nmethod=auto\n"
     ))
 }
@@ -254,5 +269,8 @@ mod tests {
         assert!(a.contains("ssid=robots\n") && a.contains("psk=secret123\n"));
         assert!(wifi_keyfile("robots", "short").is_err());
         assert!(wifi_keyfile("", "secret123").is_err());
+        assert!(wifi_keyfile("a;b", "secret123").is_err());
+        let k = wifi_keyfile("robots", r" back\slash").unwrap();
+        assert!(k.contains(r"psk=\sback\\slash"), "{k}");
     }
 }

@@ -49,39 +49,52 @@ fn zip_entry(path: &Path) -> Result<String, ImageError> {
     }
 }
 
+/// Where [`unpack`] puts the image of `path` (compressed as `kind`).
+pub fn target(path: &Path, kind: &str) -> Result<PathBuf, ImageError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    Ok(dir.join(target_name(path, kind)?))
+}
+
+fn target_name(path: &Path, kind: &str) -> Result<String, ImageError> {
+    if kind == "zip" {
+        let entry = zip_entry(path)?;
+        return Ok(Path::new(&entry)
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or(entry));
+    }
+    let file = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let stem = [".xz", ".gz", ".zst"]
+        .iter()
+        .find_map(|ext| file.strip_suffix(ext))
+        .unwrap_or(&file)
+        .to_string();
+    Ok(if stem.ends_with(".img") {
+        stem
+    } else {
+        format!("{stem}.img")
+    })
+}
+
 /// Unpacks `path`, compressed as `kind` ("zip", "xz", "gzip", "zstd"), into a new image
-/// file beside it, and returns that file's path. Refuses to overwrite an existing file.
+/// file beside it ([`target`]), and returns that file's path. Refuses to overwrite an
+/// existing file.
 pub fn unpack(path: &Path, kind: &str) -> Result<PathBuf, ImageError> {
     let dir = path.parent().unwrap_or(Path::new("."));
-    let (mut cmd, name) = match kind {
+    let name = target_name(path, kind)?;
+    let mut cmd = match kind {
         "zip" => {
-            let entry = zip_entry(path)?;
             let mut c = Command::new("unzip");
-            c.arg("-p").arg(path).arg(&entry);
-            let base = Path::new(&entry)
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or(entry);
-            (c, base)
+            c.arg("-p").arg(path).arg(zip_entry(path)?);
+            c
         }
         "xz" | "gzip" | "zstd" => {
             let mut c = Command::new(kind);
             c.arg("-dc").arg(path);
-            let file = path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let stem = [".xz", ".gz", ".zst"]
-                .iter()
-                .find_map(|ext| file.strip_suffix(ext))
-                .unwrap_or(&file)
-                .to_string();
-            let name = if stem.ends_with(".img") {
-                stem
-            } else {
-                format!("{stem}.img")
-            };
-            (c, name)
+            c
         }
         other => {
             return Err(ImageError::Input {
