@@ -58,8 +58,12 @@ impl OrtPolicy {
             path: shown.clone(),
             reason,
         };
-        let bytes = std::fs::read(path).map_err(|e| model_err(format!("cannot read: {e}")))?;
-        if bytes.is_empty() {
+        // ONNX Runtime reads the file itself: no copy of the weights in this process's
+        // memory beside its own (the whole process's peak is what a Nano has to hold).
+        let len = std::fs::metadata(path)
+            .map_err(|e| model_err(format!("cannot read: {e}")))?
+            .len();
+        if len == 0 {
             return Err(model_err("the file is empty".into()));
         }
         let (_, env) = runtime::environment(opts.library)?;
@@ -112,7 +116,7 @@ impl OrtPolicy {
         // ONNX Runtime always has its CPU provider underneath.
         let provider = in_use.unwrap_or(Provider::Cpu);
         let session = builder
-            .commit_from_memory(&bytes)
+            .commit_from_file(path)
             .map_err(|e| model_err(format!("ONNX Runtime cannot load it: {e}")))?;
 
         let meta = read_metadata(&session);
