@@ -17,6 +17,16 @@ use jetpilot::sim::closed_loop::{self, Pilot};
 use jetpilot::sim::reward::autonomy;
 use jetpilot::sim::setup;
 
+/// The "N commands written" count from `sim --realtime`'s summary (0 when absent).
+fn commands_written(summary: &str) -> u32 {
+    summary
+        .split(" commands written")
+        .next()
+        .and_then(|s| s.rsplit(", ").next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(0)
+}
+
 /// A config with a small camera, so debug-build tests render quickly.
 fn small_config(extra: &str) -> Config {
     Config::parse(
@@ -140,13 +150,7 @@ fn an_l298n_car_drives_through_its_virtual_h_bridge() {
         String::from_utf8_lossy(&out.stderr)
     );
     let text = String::from_utf8_lossy(&out.stdout);
-    let written: u32 = text
-        .split(" commands written")
-        .next()
-        .and_then(|s| s.rsplit(", ").next())
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(0);
-    assert!(written >= 30, "{text}");
+    assert!(commands_written(&text) >= 30, "{text}");
 }
 
 #[test]
@@ -534,13 +538,7 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
         String::from_utf8_lossy(&out.stderr)
     );
     let text = String::from_utf8_lossy(&out.stdout);
-    let written: u32 = text
-        .split(" commands written")
-        .next()
-        .and_then(|s| s.rsplit(", ").next())
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(0);
-    assert!(written >= 30, "{text}");
+    assert!(commands_written(&text) >= 30, "{text}");
 }
 
 #[test]

@@ -191,6 +191,18 @@ impl Fs {
     }
 }
 
+/// What `list` says is at `path`, if anything.
+pub fn lookup<'a>(
+    listing: &'a BTreeMap<String, Option<Vec<Entry>>>,
+    path: &str,
+) -> Option<&'a Entry> {
+    let (parent, name) = split(path);
+    listing
+        .get(parent)
+        .and_then(|e| e.as_ref())
+        .and_then(|es| es.iter().find(|e| e.name == name))
+}
+
 /// (parent, name) of an absolute path.
 pub fn split(path: &str) -> (&str, &str) {
     match path.rfind('/') {

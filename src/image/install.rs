@@ -5,7 +5,7 @@
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use super::debugfs::{Entry, Fs, split};
+use super::debugfs::{Entry, Fs, lookup};
 use super::plan::{Plan, PlanInputs, Source};
 use super::{ImageError, ext4, gpt, inputs};
 use crate::config::{CameraSource, Config, MotorBackend};
@@ -184,13 +184,7 @@ fn commands(
 ) -> (Vec<String>, Vec<String>) {
     let mut cmds = Vec::new();
     let mut report = Vec::new();
-    let present = |path: &str| -> Option<Entry> {
-        let (parent, name) = split(path);
-        existing
-            .get(parent)
-            .and_then(|e| e.as_ref())
-            .and_then(|es| es.iter().find(|e| e.name == name).cloned())
-    };
+    let present = |path: &str| lookup(existing, path);
     for d in dirs {
         if matches!(existing.get(d), Some(None)) {
             cmds.push(format!("mkdir {}", quote(d)));
@@ -266,11 +260,7 @@ fn write_head(image: &Path, offset: u64, head: &[u8]) -> std::io::Result<()> {
 fn verify(fs: &Fs, plan: &Plan, sources: &[PathBuf], tmp: &Path) -> Result<(), String> {
     let listing = fs.list(&plan.dirs()).map_err(|e| e.to_string())?;
     for (i, (f, src)) in plan.files.iter().zip(sources).enumerate() {
-        let (parent, name) = split(&f.dest);
-        let entry = listing
-            .get(parent)
-            .and_then(|e| e.as_ref())
-            .and_then(|es| es.iter().find(|e| e.name == name))
+        let entry = lookup(&listing, &f.dest)
             .ok_or_else(|| format!("{} is missing after the write", f.dest))?;
         if entry.mode != 0o100000 | f.mode || entry.uid != 0 || entry.gid != 0 {
             return Err(format!(
@@ -296,11 +286,7 @@ fn verify(fs: &Fs, plan: &Plan, sources: &[PathBuf], tmp: &Path) -> Result<(), S
         }
     }
     for l in &plan.links {
-        let (parent, name) = split(&l.dest);
-        let ok = listing
-            .get(parent)
-            .and_then(|e| e.as_ref())
-            .and_then(|es| es.iter().find(|e| e.name == name))
+        let ok = lookup(&listing, &l.dest)
             .is_some_and(|e| e.mode & 0o170000 == 0o120000 && e.size == l.target.len() as u64);
         if !ok {
             return Err(format!(
@@ -337,11 +323,8 @@ pub fn install(opts: &InstallOptions) -> Result<InstallReport, ImageError> {
         .files
         .iter()
         .filter_map(|f| {
-            let (parent, name) = split(&f.dest);
-            existing
-                .get(parent)
-                .and_then(|e| e.as_ref())
-                .and_then(|es| es.iter().find(|e| e.name == name && !e.is_dir()))
+            lookup(&existing, &f.dest)
+                .filter(|e| !e.is_dir())
                 .map(|e| e.size.div_ceil(bs) * bs)
         })
         .sum();

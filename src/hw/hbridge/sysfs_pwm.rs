@@ -39,6 +39,8 @@ impl embedded_hal::pwm::Error for SysfsPwmError {
 #[derive(Debug)]
 pub struct SysfsPwm {
     dir: PathBuf,
+    /// `dir/duty_cycle`, the file written every frame.
+    duty_path: PathBuf,
     period_ns: u64,
 }
 
@@ -98,9 +100,13 @@ impl SysfsPwm {
             }
         }
         let period_ns = (1e9 / f64::from(hz)).round() as u64;
-        let pwm = Self { dir, period_ns };
+        let pwm = Self {
+            duty_path: dir.join("duty_cycle"),
+            dir,
+            period_ns,
+        };
         // A period shorter than a leftover duty is refused by the kernel: lower it first.
-        write(&pwm.dir.join("duty_cycle"), 0)?;
+        write(&pwm.duty_path, 0)?;
         write(&pwm.dir.join("enable"), 0)?;
         // A channel another program left "inversed" would be fully on at duty 0.
         let polarity = pwm.dir.join("polarity");
@@ -110,7 +116,7 @@ impl SysfsPwm {
             write(&polarity, "normal")?;
         }
         write(&pwm.dir.join("period"), period_ns)?;
-        write(&pwm.dir.join("duty_cycle"), 0)?;
+        write(&pwm.duty_path, 0)?;
         write(&pwm.dir.join("enable"), 1)?;
         Ok(pwm)
     }
@@ -145,13 +151,13 @@ impl SetDutyCycle for SysfsPwm {
     }
 
     fn set_duty_cycle(&mut self, duty: u16) -> Result<(), Self::Error> {
-        write(&self.dir.join("duty_cycle"), self.duty_ns(duty))
+        write(&self.duty_path, self.duty_ns(duty))
     }
 }
 
 impl Drop for SysfsPwm {
     fn drop(&mut self) {
-        let off = write(&self.dir.join("duty_cycle"), 0).and(write(&self.dir.join("enable"), 0));
+        let off = write(&self.duty_path, 0).and(write(&self.dir.join("enable"), 0));
         if let Err(e) = off {
             tracing::warn!(error = %e, "sysfs PWM: could not switch the output off");
         }
