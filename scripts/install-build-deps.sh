@@ -4,7 +4,8 @@
 # fonts-dejavu-core for the text of the trainer's learning-curve PNGs; mesa-vulkan-drivers
 # (Mesa's lavapipe, a CPU Vulkan driver, with the Vulkan loader) for the tests of the
 # trainer's wgpu backend (`train --device wgpu:cpu`) on machines without a GPU; e2fsprogs,
-# gdisk and fakeroot for the SD-image installer and its tests.
+# gdisk and fakeroot for the SD-image installer and its tests; chromium for the web page's
+# browser test.
 set -euo pipefail
 need=()
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
@@ -15,6 +16,11 @@ dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
 # downloads with unzip/xz; its tests build SD card images with gdisk's sgdisk and mkfs.ext4
 # under fakeroot, and zip one.
 for p in e2fsprogs gdisk fakeroot unzip zip xz-utils; do
+  dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
+done
+# The web page's browser test (tests/web_browser.rs) drives Debian's Chromium headless
+# through chromedriver (WebDriver).
+for p in chromium chromium-driver; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
 done
 if [ ${#need[@]} -gt 0 ]; then

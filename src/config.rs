@@ -61,6 +61,8 @@ pub struct Config {
     pub interventions: InterventionsConfig,
     pub oled: OledConfig,
     pub buzzer: crate::hw::buzzer::BuzzerConfig,
+    /// The web page: live video, gain sliders, modes and browser teleop.
+    pub web: crate::web::WebConfig,
 }
 
 /// `[oled]`: the SSD1306 128x32 status display (JetBot, Waveshare, Yahboom boards).
@@ -493,6 +495,9 @@ impl Config {
         if let Some(p) = self.interventions.log_path.as_mut() {
             fix(p);
         }
+        if let Some(p) = self.web.token_path.as_mut() {
+            fix(p);
+        }
     }
 
     /// Checks every numeric key against its allowed range.
@@ -582,6 +587,15 @@ impl Config {
             0.0,
             3600.0,
         )?;
+        let w = &self.web;
+        if let Err(e) = w.addr() {
+            return Err(v.err("web.bind", &format!("{:?}", w.bind), &e));
+        }
+        v.range("web.video_fps", w.video_fps, 0.5, 30.0)?;
+        v.range_u("web.jpeg_quality", w.jpeg_quality as u64, 1, 100)?;
+        v.range_u("web.heartbeat_ms", w.heartbeat_ms, 100, 2000)?;
+        v.range("web.throttle_scale", w.throttle_scale, 0.0, 1.0)?;
+        v.range("web.steering_scale", w.steering_scale, 0.0, 1.0)?;
         Ok(())
     }
 }

@@ -9,6 +9,7 @@
 //!
 //! `drive` runs that pipeline as the daemon (`jetpilot run`) with a watchdog that stops the
 //! motors whenever fresh commands stop arriving. `config` holds the typed TOML configuration.
+//! `web` serves the daemon's page (video, gain sliders, modes, browser teleop).
 
 pub mod camera;
 pub mod clock;
@@ -23,3 +24,4 @@ pub mod score;
 pub mod sim;
 #[cfg(feature = "train")]
 pub mod train;
+pub mod web;

@@ -69,6 +69,7 @@ fn run_logged(
         clock,
         teleop: None,
         status: None,
+        live: None,
     };
     let out = block_on(async {
         drive::run(parts, params(gains()), tokio::time::sleep(shutdown_after)).await
@@ -291,6 +292,7 @@ fn an_i2c_error_stops_the_motors() {
         clock,
         teleop: None,
         status: None,
+        live: None,
     };
     let outcome = block_on(async {
         drive::run(
@@ -407,7 +409,9 @@ fn a_gamepad_takeover_is_an_intervention_and_logged() {
     let cfg = GamepadConfig::default(); // xbox profile, tank drive, heartbeat 500 ms
     let (tx, events) = tokio::sync::mpsc::channel(64);
     let teleop = TeleopParts {
-        events,
+        events: Some(events),
+        remote: None,
+        remote_rx: None,
         pad: GamepadState::new(GamepadMap::from_config(&cfg).unwrap()),
         modes: Modes::new(ModeParams::from_gamepad(&cfg), gains()),
         autopilot_available: true,
@@ -420,6 +424,7 @@ fn a_gamepad_takeover_is_an_intervention_and_logged() {
         ),
         model_hash: "fnv1a64:0".into(),
         recorder: None,
+        open_recorder: None,
         recording: false,
     };
     let source = ScriptedSource::new(1000, Duration::from_millis(20), false, clock.clone());
@@ -431,6 +436,7 @@ fn a_gamepad_takeover_is_an_intervention_and_logged() {
         clock,
         teleop: Some(teleop),
         status: None,
+        live: None,
     };
     let press = |code| InputEvent::Button {
         code,

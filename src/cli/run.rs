@@ -9,7 +9,9 @@ use anyhow::Context;
 use jetpilot::clock::{Clock, MonotonicClock};
 use jetpilot::config::Config;
 use jetpilot::drive::{self, DriveParams, Parts, RunEnd, setup};
+use jetpilot::drive::remote::{RemoteControl, RemoteMsg, RemoteScales};
 use jetpilot::policy::Policy;
+use jetpilot::web::{WebLinks, WebServer};
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
@@ -53,6 +55,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let model = args.model.clone().unwrap_or_else(|| cfg.model.path.clone());
     drive_with(
         &cfg,
+        &args.config,
         Box::new(policy),
         Some(&model),
         source,
@@ -81,6 +84,7 @@ pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
     let source = setup::open_source(&cfg, clock.clone())?;
     drive_with(
         &cfg,
+        &args.config,
         policy,
         args.model.as_deref(),
         source,
@@ -90,25 +94,37 @@ pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
     )
 }
 
-/// The gamepad side of a run, when `[gamepad]` is configured.
+/// The human side of a run: when `[gamepad]` is configured, or a web page can drive.
 fn teleop_parts(
     cfg: &Config,
     model: Option<&Path>,
     recording: bool,
     cancel: &tokio_util::sync::CancellationToken,
+    remote: Option<(RemoteControl, tokio::sync::mpsc::Receiver<RemoteMsg>)>,
 ) -> anyhow::Result<Option<jetpilot::drive::teleop::TeleopParts>> {
     use jetpilot::dataset::tub::{TubInputs, TubWriter};
     use jetpilot::drive::interventions::{InterventionLog, SessionInfo, fnv1a64_file};
     use jetpilot::drive::modes::{ModeParams, Modes};
     use jetpilot::drive::recorder::Recorder;
-    use jetpilot::drive::teleop::{TeleopParts, spawn_reader};
-    use jetpilot::hw::gamepad::{GamepadMap, GamepadState};
+    use jetpilot::drive::teleop::{OpenRecorder, TeleopParts, spawn_reader};
+    use jetpilot::hw::gamepad::{GamepadConfig, GamepadMap, GamepadState};
 
-    let Some(g) = cfg.gamepad.clone() else {
+    if cfg.gamepad.is_none() && remote.is_none() {
         return Ok(None);
+    }
+    let events = match cfg.gamepad.clone() {
+        Some(g) => {
+            let (tx, events) = tokio::sync::mpsc::channel(256);
+            spawn_reader(g, tx, cancel.clone()).context("cannot start the gamepad thread")?;
+            Some(events)
+        }
+        None => None,
     };
-    let (tx, events) = tokio::sync::mpsc::channel(256);
-    spawn_reader(g.clone(), tx, cancel.clone()).context("cannot start the gamepad thread")?;
+    let g = cfg.gamepad.clone().unwrap_or_else(GamepadConfig::default);
+    let params = match &cfg.gamepad {
+        Some(g) => ModeParams::from_gamepad(g),
+        None => ModeParams::default(),
+    };
     let model_hash = match model {
         Some(m) => fnv1a64_file(m)?,
         None => "none".to_string(),
@@ -123,23 +139,36 @@ fn teleop_parts(
         }
         None => None,
     };
-    let now = super::unix_now();
-    let tub = TubWriter::create(&cfg.record.path, &TubInputs::ALL, now)
-        .with_context(|| format!("recording to {}", cfg.record.path.display()))?;
-    let recorder = Recorder::start(
-        Box::new(tub),
-        cfg.record.max_records,
-        cfg.record.jetbot_xy.clone(),
-    )
-    .context("cannot start the recorder thread")?;
+    let rec = cfg.record.clone();
+    let open = move || -> anyhow::Result<Recorder> {
+        let tub = TubWriter::create(&rec.path, &TubInputs::ALL, super::unix_now())
+            .with_context(|| format!("recording to {}", rec.path.display()))?;
+        Recorder::start(Box::new(tub), rec.max_records, rec.jetbot_xy.clone())
+            .context("cannot start the recorder thread")
+    };
+    // With a gamepad (or `jetpilot record`) the tub is opened now, so a bad path fails at
+    // start; a web page alone opens it at its first press of record.
+    let (recorder, open_recorder): (Option<Recorder>, Option<OpenRecorder>) =
+        if cfg.gamepad.is_some() || recording {
+            (Some(open()?), None)
+        } else {
+            (None, Some(Box::new(move || open().map_err(|e| format!("{e:#}")))))
+        };
+    let (remote, remote_rx) = match remote {
+        Some((c, rx)) => (Some(c), Some(rx)),
+        None => (None, None),
+    };
     Ok(Some(TeleopParts {
         events,
+        remote,
+        remote_rx,
         pad: GamepadState::new(GamepadMap::from_config(&g)?),
-        modes: Modes::new(ModeParams::from_gamepad(&g), cfg.control.gains()),
+        modes: Modes::new(params, cfg.control.gains()),
         autopilot_available: model.is_some(),
         log,
         model_hash,
-        recorder: Some(recorder),
+        recorder,
+        open_recorder,
         recording,
     }))
 }
@@ -147,6 +176,7 @@ fn teleop_parts(
 #[allow(clippy::too_many_arguments)]
 fn drive_with(
     cfg: &Config,
+    config_path: &Path,
     policy: Box<dyn Policy + Send>,
     model: Option<&Path>,
     source: Box<dyn jetpilot::camera::FrameSource>,
@@ -156,9 +186,22 @@ fn drive_with(
 ) -> anyhow::Result<ExitCode> {
     let cancel = tokio_util::sync::CancellationToken::new();
     let _stop_reader = cancel.clone().drop_guard();
-    let teleop = teleop_parts(cfg, model, recording, &cancel)?;
+    // The web page: its requests go to the actuator, the frames it acted on come back.
+    let (remote_tx, remote_rx) = tokio::sync::mpsc::channel(64);
+    let (live_tx, live_rx) = tokio::sync::watch::channel(None);
+    let remote = cfg.web.enabled.then(|| {
+        let scales = RemoteScales {
+            throttle_scale: cfg.web.throttle_scale,
+            steering_scale: cfg.web.steering_scale,
+        };
+        let hb = Duration::from_millis(cfg.web.heartbeat_ms);
+        (RemoteControl::new(hb, scales), remote_rx)
+    });
+    let output = policy.contract().output;
+    let teleop = teleop_parts(cfg, model, recording, &cancel, remote)?;
     let motors = setup::open_motors(cfg, clock.clone())?;
     let (status_tx, status_rx) = tokio::sync::watch::channel(Default::default());
+    let status_rx_web = status_tx.subscribe();
     let panel = if cfg.oled.enabled || cfg.buzzer.enabled {
         Some(super::panel::spawn(
             cfg,
@@ -180,11 +223,30 @@ fn drive_with(
         motors,
         clock,
         teleop,
+        live: cfg.web.enabled.then_some(live_tx),
         status: Some(status_tx),
     };
     let params = DriveParams::from_config(cfg);
     let duration = duration.map(Duration::from_secs_f64);
-    let outcome = runtime.block_on(drive::run(parts, params, shutdown_signal(duration)));
+    let outcome = runtime.block_on(async {
+        let web = if cfg.web.enabled {
+            let links = WebLinks {
+                status: status_rx_web,
+                live: live_rx,
+                remote: remote_tx,
+            };
+            let config_path = std::fs::canonicalize(config_path).ok();
+            Some(WebServer::start(&cfg.web, config_path, output, links).await?)
+        } else {
+            drop(remote_tx);
+            None
+        };
+        let outcome = drive::run(parts, params, shutdown_signal(duration)).await;
+        if let Some(w) = web {
+            w.stop().await;
+        }
+        anyhow::Ok(outcome)
+    })?;
     cancel.cancel();
     if let Some(p) = panel {
         let _ = p.join();

@@ -593,6 +593,7 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
         clock,
         teleop: None,
         status: None,
+        live: None,
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

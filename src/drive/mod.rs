@@ -21,6 +21,7 @@
 pub mod interventions;
 pub mod modes;
 pub mod recorder;
+pub mod remote;
 pub mod setup;
 pub mod stages;
 pub mod stats;
@@ -41,7 +42,7 @@ use crate::control::SteeringGains;
 use crate::hw::{MotorError, MotorOutput};
 use crate::policy::{Policy, PolicyError};
 use stages::{Command, InferParams, StageMsg};
-use stats::{StageStats, StageSummary};
+use stats::{StageHistograms, StageStats, StageSummary};
 use watchdog::Watchdog;
 
 /// A fault that ended the run. The motors were stopped before it was returned.
@@ -80,8 +81,26 @@ pub struct Parts {
     /// Gamepad, modes, interventions log and recording; `None`: the autopilot drives from
     /// the start and nothing else can take over (the demo, the simulator).
     pub teleop: Option<teleop::TeleopParts>,
-    /// Where the daemon publishes its [`DaemonStatus`] twice a second (the OLED panel).
+    /// Where the daemon publishes its [`DaemonStatus`] twice a second (the OLED panel, the
+    /// web page).
     pub status: Option<tokio::sync::watch::Sender<DaemonStatus>>,
+    /// Where the actuator publishes each frame it acted on (the web page's video); the
+    /// newest replaces the last, so a slow reader never holds the loop up.
+    pub live: Option<tokio::sync::watch::Sender<Option<LiveFrame>>>,
+}
+
+/// A frame the actuator acted on, with what the model said and what went to the motors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveFrame {
+    pub seq: u64,
+    pub width: u32,
+    pub height: u32,
+    /// RGB8, shared with the pipeline (not copied).
+    pub rgb: Arc<Vec<u8>>,
+    /// The model's outputs (target point or speed/steering).
+    pub outputs: [f32; 2],
+    /// What was written to the motors for it.
+    pub wheels: crate::control::WheelCommand,
 }
 
 /// What the daemon is doing, for a status display.
@@ -95,6 +114,26 @@ pub struct DaemonStatus {
     pub interventions: u64,
     /// Seconds since the run started.
     pub elapsed_s: f32,
+    /// The autopilot's gains now.
+    pub gains: SteeringGains,
+    /// A model is loaded (Auto is possible).
+    pub autopilot_available: bool,
+    pub recording: bool,
+    /// Records written by the recorder so far.
+    pub records: u64,
+    /// The web client holding the controls.
+    pub remote_holder: Option<remote::ClientId>,
+    pub frames_captured: u64,
+    pub frames_skipped: u64,
+    pub stale_dropped: u64,
+    pub watchdog_stops: u64,
+    /// Autopilot commands written per second since the previous status.
+    pub commands_per_s: f32,
+    /// Stage latencies for the whole run (the means since the previous status are
+    /// `recent_ms`).
+    pub histograms: StageHistograms,
+    /// Mean latency per stage since the previous status, ms (`None`: no sample).
+    pub recent_ms: [Option<f32>; 5],
 }
 
 /// Daemon settings, from the config's `[control]`, `[safety]` and `[log]`.
@@ -173,15 +212,16 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         clock,
         teleop,
         status,
+        live,
     } = parts;
     let (gains_tx, gains_rx) = tokio::sync::watch::channel(params.gains);
-    let (events, teleop) = match teleop {
+    let (events, remote_rx, teleop) = match teleop {
         Some(mut t) => {
-            let (_, dummy) = mpsc::channel(1);
-            let events = std::mem::replace(&mut t.events, dummy);
-            (Some(events), Some(teleop::Teleop::new(t, gains_tx)))
+            let events = t.events.take();
+            let remote_rx = t.remote_rx.take();
+            (events, remote_rx, Some(teleop::Teleop::new(t, gains_tx)))
         }
-        None => (None, None),
+        None => (None, None, None),
     };
     let started = clock.now();
     let cancel = CancellationToken::new();
@@ -229,8 +269,13 @@ pub async fn run(parts: Parts, params: DriveParams, shutdown: impl Future<Output
         status,
         started,
         last_sent: crate::control::WheelCommand::STOP,
+        live,
+        slot: slot.clone(),
+        histograms: StageHistograms::default(),
+        published: (started, 0, StageHistograms::default()),
+        gains: params.gains,
     };
-    let result = actuator.run(rx, events, shutdown).await;
+    let result = actuator.run(rx, events, remote_rx, shutdown).await;
     if let Some(t) = actuator.teleop.take() {
         t.finish(clock.now().saturating_sub(started));
     }
@@ -276,6 +321,23 @@ struct Actuator<'a> {
     status: Option<tokio::sync::watch::Sender<DaemonStatus>>,
     started: Duration,
     last_sent: crate::control::WheelCommand,
+    live: Option<tokio::sync::watch::Sender<Option<LiveFrame>>>,
+    slot: Arc<LatestFrame>,
+    histograms: StageHistograms,
+    /// When the last status went out, the autopilot commands and histograms then.
+    published: (Duration, u64, StageHistograms),
+    /// The gains without a teleop (they never change then).
+    gains: SteeringGains,
+}
+
+/// The next web page message, or never when there is no web page.
+async fn next_remote(
+    rx: &mut Option<mpsc::Receiver<remote::RemoteMsg>>,
+) -> Option<remote::RemoteMsg> {
+    match rx {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
 }
 
 /// The next gamepad event, or never when there is no gamepad.
@@ -293,6 +355,7 @@ impl Actuator<'_> {
         &mut self,
         mut rx: mpsc::Receiver<StageMsg>,
         mut events: Option<mpsc::Receiver<crate::hw::gamepad::InputEvent>>,
+        mut remote_rx: Option<mpsc::Receiver<remote::RemoteMsg>>,
         shutdown: impl Future<Output = ()>,
     ) -> Result<RunEnd, DriveError> {
         let mut manual_tick = tokio::time::interval(Duration::from_millis(50));
@@ -371,19 +434,41 @@ impl Actuator<'_> {
                         }
                         (_, None) => continue,
                     };
-                    if let Err(e) = self.apply(d) {
+                    if let Some(d) = d
+                        && let Err(e) = self.apply(d)
+                    {
                         break Err(e);
                     }
                 }
+                msg = next_remote(&mut remote_rx) => {
+                    let now = self.clock.now();
+                    let d = match (msg, self.teleop.as_mut()) {
+                        (Some(m), Some(t)) => t.on_remote(&m, now),
+                        (None, _) => {
+                            // The web server is gone: its page can no longer drive or
+                            // stop the car; treat it as the page closing.
+                            tracing::warn!("the web server stopped");
+                            remote_rx = None;
+                            self.teleop.as_mut().and_then(|t| {
+                                let holder = t.remote_holder()?;
+                                t.on_remote(&remote::RemoteMsg { client: holder, request: remote::RemoteRequest::Closed }, now)
+                            })
+                        }
+                        (_, None) => continue,
+                    };
+                    if let Some(d) = d
+                        && let Err(e) = self.apply(d)
+                    {
+                        break Err(e);
+                    }
+                    self.publish_status();
+                }
                 _ = manual_tick.tick(), if self.teleop.is_some() => {
                     let now = self.clock.now();
-                    if let Some(t) = self.teleop.as_mut()
-                        && t.mode() != modes::Mode::Auto
+                    if let Some(d) = self.teleop.as_mut().and_then(|t| t.poll(now))
+                        && let Err(e) = self.apply(d)
                     {
-                        let d = t.tick(now, None);
-                        if let Err(e) = self.apply(d) {
-                            break Err(e);
-                        }
+                        break Err(e);
                     }
                 }
             }
@@ -433,13 +518,28 @@ impl Actuator<'_> {
         let t1 = self.clock.now();
         self.watchdog.feed(t1);
         self.report.commands_written += 1;
+        let (actuate, age) = (t1.saturating_sub(t0), t1.saturating_sub(cmd.captured_at));
         self.stats.preprocess.push(cmd.preprocess);
         self.stats.inference.push(cmd.inference);
         self.stats.control.push(cmd.control);
-        self.stats.actuate.push(t1.saturating_sub(t0));
-        self.stats
-            .frame_age
-            .push(t1.saturating_sub(cmd.captured_at));
+        self.stats.actuate.push(actuate);
+        self.stats.frame_age.push(age);
+        let h = &mut self.histograms;
+        h.preprocess.observe(cmd.preprocess);
+        h.inference.observe(cmd.inference);
+        h.control.observe(cmd.control);
+        h.actuate.observe(actuate);
+        h.frame_age.observe(age);
+        if let Some(tx) = &self.live {
+            tx.send_replace(Some(LiveFrame {
+                seq: cmd.seq,
+                width: cmd.width,
+                height: cmd.height,
+                rgb: cmd.frame.clone(),
+                outputs: cmd.outputs,
+                wheels: sent,
+            }));
+        }
         tracing::debug!(
             seq = cmd.seq,
             x = cmd.outputs[0],
@@ -475,23 +575,72 @@ impl Actuator<'_> {
         Ok(())
     }
 
-    fn publish_status(&self) {
-        if let Some(tx) = &self.status {
-            let (mode, interventions) = match &self.teleop {
-                Some(t) => (t.mode().as_str().to_string(), t.interventions()),
-                None => ("auto".to_string(), 0),
+    fn publish_status(&mut self) {
+        let Some(tx) = &self.status else {
+            return;
+        };
+        let now = self.clock.now();
+        let (mode, interventions, gains, (recording, records), autopilot_available, holder) =
+            match &self.teleop {
+                Some(t) => (
+                    t.mode().as_str().to_string(),
+                    t.interventions(),
+                    t.gains(),
+                    t.recording(),
+                    t.autopilot_available(),
+                    t.remote_holder(),
+                ),
+                None => ("auto".to_string(), 0, self.gains, (false, 0), true, None),
             };
-            tx.send_replace(DaemonStatus {
-                mode,
-                commands_written: self.report.commands_written,
-                last: if self.motors_stopped {
-                    crate::control::WheelCommand::STOP
-                } else {
-                    self.last_sent
-                },
-                interventions,
-                elapsed_s: self.clock.now().saturating_sub(self.started).as_secs_f32(),
-            });
+        let (then, then_cmds, then_h) = self.published;
+        let autopilot_cmds = self.histograms.actuate.count;
+        let dt = now.saturating_sub(then).as_secs_f32();
+        let h = self.histograms;
+        let recent = |a: &stats::Histogram, b: &stats::Histogram| a.mean_since(b).map(|v| v as f32);
+        let counts = self.slot.counts();
+        // Rates and means over at least 0.4 s (a status also goes out after each web
+        // request, so the page sees its change at once).
+        let window = dt >= 0.4;
+        let (commands_per_s, recent_ms) = if window {
+            (
+                autopilot_cmds.saturating_sub(then_cmds) as f32 / dt,
+                [
+                    recent(&h.preprocess, &then_h.preprocess),
+                    recent(&h.inference, &then_h.inference),
+                    recent(&h.control, &then_h.control),
+                    recent(&h.actuate, &then_h.actuate),
+                    recent(&h.frame_age, &then_h.frame_age),
+                ],
+            )
+        } else {
+            let last = tx.borrow();
+            (last.commands_per_s, last.recent_ms)
+        };
+        tx.send_replace(DaemonStatus {
+            mode,
+            commands_written: self.report.commands_written,
+            last: if self.motors_stopped {
+                crate::control::WheelCommand::STOP
+            } else {
+                self.last_sent
+            },
+            interventions,
+            elapsed_s: now.saturating_sub(self.started).as_secs_f32(),
+            gains,
+            autopilot_available,
+            recording,
+            records,
+            remote_holder: holder,
+            frames_captured: counts.produced,
+            frames_skipped: counts.skipped,
+            stale_dropped: self.report.stale_dropped,
+            watchdog_stops: self.report.watchdog_stops,
+            commands_per_s,
+            histograms: h,
+            recent_ms,
+        });
+        if window {
+            self.published = (now, autopilot_cmds, h);
         }
     }
 

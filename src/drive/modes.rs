@@ -52,6 +52,12 @@ pub const GAIN_STEP: f32 = 0.05;
 pub const SPEED_GAIN_RANGE: (f32, f32) = (0.0, 1.0);
 /// Allowed range of `steering_gain` for the gain buttons.
 pub const STEERING_GAIN_RANGE: (f32, f32) = (0.0, 2.0);
+/// Allowed range of `steering_kd` (the config's; JetBot's slider is 0..0.5).
+pub const STEERING_KD_RANGE: (f32, f32) = (0.0, 1.0);
+/// Allowed range of `steering_bias` (the config's; JetBot's slider is -0.3..0.3).
+pub const STEERING_BIAS_RANGE: (f32, f32) = (-0.5, 0.5);
+/// Allowed range of `steering_ki` (the config's).
+pub const STEERING_KI_RANGE: (f32, f32) = (0.0, 2.0);
 
 /// The machine's settings (from `[gamepad]`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -117,6 +123,8 @@ pub enum Cause {
     Stick,
     /// The gamepad disconnected.
     GamepadLost,
+    /// The web page holding the controls closed or fell silent (its dead-man).
+    RemoteLost,
 }
 
 impl Cause {
@@ -126,6 +134,7 @@ impl Cause {
             Cause::Button(a) => a.name(),
             Cause::Stick => "stick",
             Cause::GamepadLost => "gamepad_lost",
+            Cause::RemoteLost => "browser_lost",
         }
     }
 }
@@ -326,6 +335,40 @@ impl Modes {
         }
     }
 
+    /// Gains set from outside (the web page's sliders) at `now`, each clamped to its range
+    /// (a non-finite value keeps the old one); `integral_limit` is kept.
+    pub fn set_gains(&mut self, wanted: SteeringGains, now: Duration) {
+        let old = self.gains;
+        let fit = |v: f32, was: f32, (lo, hi): (f32, f32)| {
+            if v.is_finite() {
+                round_gain(v).clamp(lo, hi)
+            } else {
+                was
+            }
+        };
+        let g = SteeringGains {
+            speed_gain: fit(wanted.speed_gain, old.speed_gain, SPEED_GAIN_RANGE),
+            steering_gain: fit(wanted.steering_gain, old.steering_gain, STEERING_GAIN_RANGE),
+            steering_kd: fit(wanted.steering_kd, old.steering_kd, STEERING_KD_RANGE),
+            steering_bias: fit(wanted.steering_bias, old.steering_bias, STEERING_BIAS_RANGE),
+            steering_ki: fit(wanted.steering_ki, old.steering_ki, STEERING_KI_RANGE),
+            integral_limit: old.integral_limit,
+        };
+        if g != old {
+            self.gains = g;
+            self.events
+                .push(ModeEvent::GainsChanged { at: now, gains: g });
+        }
+    }
+
+    /// The web page holding the controls closed or fell silent at `now`: Manual and Auto
+    /// end in Stopped (latched, like a lost gamepad; not an intervention: nobody acted).
+    pub fn on_remote_lost(&mut self, now: Duration) {
+        if matches!(self.mode, Mode::Manual | Mode::Auto) {
+            self.set_mode(Mode::Stopped, Cause::RemoteLost, now);
+        }
+    }
+
     /// A button action at `now`.
     pub fn on_action(&mut self, action: Action, now: Duration) {
         let cause = Cause::Button(action);
@@ -446,7 +489,16 @@ impl Modes {
         pad: &GamepadState,
         autopilot: Option<WheelCommand>,
     ) -> Drive {
-        let snap = pad.snapshot(now);
+        self.tick_snapshot(now, pad.snapshot(now), autopilot)
+    }
+
+    /// [`Modes::tick`] on a snapshot (the daemon merges a web page's sticks into it).
+    pub fn tick_snapshot(
+        &mut self,
+        now: Duration,
+        snap: PadSnapshot,
+        autopilot: Option<WheelCommand>,
+    ) -> Drive {
         if !snap.connected {
             self.on_gamepad_lost(now);
         }

@@ -162,3 +162,89 @@ mod tests {
         assert_eq!(s.overall().max, 6.0);
     }
 }
+
+/// Upper bounds, in milliseconds, of the latency histograms' buckets (`+Inf` is implied).
+pub const BUCKETS_MS: [f64; 12] = [
+    1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 50.0, 75.0, 100.0, 200.0, 500.0, 1000.0,
+];
+
+/// A cumulative latency histogram for the whole run (Prometheus style: each bucket counts
+/// the samples at or below its bound).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Histogram {
+    /// Samples at or below `BUCKETS_MS[i]`.
+    pub le: [u64; BUCKETS_MS.len()],
+    pub count: u64,
+    pub sum_ms: f64,
+}
+
+impl Histogram {
+    pub fn observe(&mut self, d: Duration) {
+        let ms = d.as_secs_f64() * 1000.0;
+        for (n, bound) in self.le.iter_mut().zip(BUCKETS_MS) {
+            if ms <= bound {
+                *n += 1;
+            }
+        }
+        self.count += 1;
+        self.sum_ms += ms;
+    }
+
+    /// The mean of the samples added since `earlier` (a previous copy), in ms.
+    pub fn mean_since(&self, earlier: &Histogram) -> Option<f64> {
+        let n = self.count.checked_sub(earlier.count)?;
+        (n > 0).then(|| (self.sum_ms - earlier.sum_ms) / n as f64)
+    }
+}
+
+/// One histogram per stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageHistograms {
+    pub preprocess: Histogram,
+    pub inference: Histogram,
+    pub control: Histogram,
+    pub actuate: Histogram,
+    pub frame_age: Histogram,
+}
+
+impl StageHistograms {
+    /// `(stage name, histogram)` in pipeline order.
+    pub fn named(&self) -> [(&'static str, &Histogram); 5] {
+        [
+            ("preprocess", &self.preprocess),
+            ("inference", &self.inference),
+            ("control", &self.control),
+            ("actuate", &self.actuate),
+            ("frame_age", &self.frame_age),
+        ]
+    }
+}
+
+#[cfg(test)]
+mod histogram_tests {
+    use super::*;
+
+    #[test]
+    fn buckets_are_cumulative_and_the_mean_is_over_new_samples() {
+        let mut h = Histogram::default();
+        h.observe(Duration::from_micros(1500)); // 1.5 ms: le 2 and up
+        h.observe(Duration::from_millis(40)); // le 50 and up
+        assert_eq!(h.le[0], 0);
+        assert_eq!(h.le[1], 1);
+        assert_eq!(h.le[5], 1); // le 30
+        assert_eq!(h.le[6], 2); // le 50
+        assert_eq!(h.le[11], 2);
+        assert_eq!(h.count, 2);
+        assert!((h.sum_ms - 41.5).abs() < 1e-9);
+        let before = h;
+        assert_eq!(h.mean_since(&before), None);
+        h.observe(Duration::from_millis(10));
+        h.observe(Duration::from_millis(20));
+        assert!((h.mean_since(&before).unwrap() - 15.0).abs() < 1e-9);
+        // Past the last bound: only in count (+Inf).
+        let mut big = Histogram::default();
+        big.observe(Duration::from_secs(2));
+        assert_eq!(big.le, [0; 12]);
+        assert_eq!(big.count, 1);
+    }
+}

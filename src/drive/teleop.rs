@@ -4,6 +4,11 @@
 //! The actuator owns a [`Teleop`] and asks it, for every autopilot command and on a 20 Hz
 //! tick, what goes to the motors ([`Drive`]). Gamepad events arrive from a reader thread
 //! ([`spawn_reader`]) over a channel, so tests feed synthetic events the same way.
+//!
+//! A web page is a second driver ([`super::remote`]): its sticks drive in Manual while no
+//! physical gamepad is in use (a gamepad that sent an event within the last 0.5 s always
+//! wins), its mode buttons act like the gamepad's, and when the page holding the controls
+//! closes or falls silent the car goes to Stopped at once (unless the gamepad is in use).
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -14,14 +19,25 @@ use tokio_util::sync::CancellationToken;
 use super::interventions::{InterventionLog, InterventionRecord};
 use super::modes::{Drive, Mode, ModeEvent, Modes};
 use super::recorder::{RecordStep, Recorder};
+use super::remote::{Outcome, RemoteControl, RemoteMsg, RemoteRequest};
 use super::stages::Command;
 use crate::control::{SteeringGains, WheelCommand};
 use crate::dataset::tub::DriveMode;
-use crate::hw::gamepad::{Action, GamepadConfig, GamepadReader, GamepadState, InputEvent};
+use crate::hw::gamepad::{
+    Action, GamepadConfig, GamepadReader, GamepadState, InputEvent, PadSnapshot,
+};
+
+/// A gamepad whose last event is younger than this is "in use" and wins over a web page.
+const PAD_IN_USE: Duration = Duration::from_millis(500);
 
 /// What the daemon's human interface starts with.
 pub struct TeleopParts {
-    pub events: mpsc::Receiver<InputEvent>,
+    /// Gamepad events; `None`: no gamepad configured (a web page may still drive).
+    pub events: Option<mpsc::Receiver<InputEvent>>,
+    /// The web page's controls; `None`: no web page.
+    pub remote: Option<RemoteControl>,
+    /// The web page's messages (read by the actuator's loop).
+    pub remote_rx: Option<mpsc::Receiver<RemoteMsg>>,
     pub pad: GamepadState,
     pub modes: Modes,
     /// False without a model (`jetpilot record`): Auto is refused.
@@ -29,33 +45,43 @@ pub struct TeleopParts {
     pub log: Option<InterventionLog>,
     pub model_hash: String,
     pub recorder: Option<Recorder>,
+    /// Opens the recorder at the first press of record, when `recorder` is `None` (a web
+    /// page without a gamepad: no tub is made unless someone records).
+    pub open_recorder: Option<OpenRecorder>,
     /// Record from the start (`jetpilot record`); the record button toggles it.
     pub recording: bool,
 }
 
+/// Makes the recorder on demand; the error names the tub.
+pub type OpenRecorder = Box<dyn FnOnce() -> Result<Recorder, String> + Send>;
+
 pub struct Teleop {
-    pub events: mpsc::Receiver<InputEvent>,
     pad: GamepadState,
+    remote: Option<RemoteControl>,
     modes: Modes,
     autopilot_available: bool,
     log: Option<InterventionLog>,
     model_hash: String,
     recorder: Option<Recorder>,
+    open_recorder: Option<OpenRecorder>,
     recording: bool,
     last_seq: u64,
     gains_tx: watch::Sender<SteeringGains>,
 }
 
 impl Teleop {
+    /// The teleop state; take `parts.events` and `parts.remote_rx` first (the actuator's
+    /// loop reads them).
     pub fn new(parts: TeleopParts, gains_tx: watch::Sender<SteeringGains>) -> Self {
         Self {
-            events: parts.events,
+            remote: parts.remote,
             pad: parts.pad,
             modes: parts.modes,
             autopilot_available: parts.autopilot_available,
             log: parts.log,
             model_hash: parts.model_hash,
             recorder: parts.recorder,
+            open_recorder: parts.open_recorder,
             recording: parts.recording,
             last_seq: 0,
             gains_tx,
@@ -70,8 +96,144 @@ impl Teleop {
         self.modes.interventions()
     }
 
-    /// A gamepad event; returns what goes to the motors now.
-    pub fn on_event(&mut self, event: &InputEvent, now: Duration) -> Drive {
+    /// The autopilot's gains now.
+    pub fn gains(&self) -> SteeringGains {
+        self.modes.gains()
+    }
+
+    /// Recording now, and records written so far.
+    pub fn recording(&self) -> (bool, u64) {
+        let written = self.recorder.as_ref().map_or(0, |r| {
+            r.counts()
+                .written
+                .load(std::sync::atomic::Ordering::Relaxed)
+        });
+        (self.recording, written)
+    }
+
+    pub fn autopilot_available(&self) -> bool {
+        self.autopilot_available
+    }
+
+    /// The web client holding the controls.
+    pub fn remote_holder(&self) -> Option<super::remote::ClientId> {
+        self.remote.as_ref().and_then(|r| r.holder())
+    }
+
+    /// The physical gamepad sent an event within [`PAD_IN_USE`] and is connected.
+    fn pad_in_use(&self, now: Duration) -> bool {
+        self.pad.is_connected()
+            && self
+                .pad
+                .last_event()
+                .is_some_and(|t| now.saturating_sub(t) < PAD_IN_USE)
+    }
+
+    /// The pad's snapshot, or the web page's sticks while it holds the controls and the
+    /// pad is not in use.
+    fn snapshot(&self, now: Duration) -> PadSnapshot {
+        let snap = self.pad.snapshot(now);
+        match self.remote.as_ref().and_then(|r| r.command().map(|c| (c, r.deflection()))) {
+            Some((manual, deflection)) if !self.pad_in_use(now) => PadSnapshot {
+                manual,
+                deflection,
+                connected: true,
+                stale: false,
+            },
+            _ => snap,
+        }
+    }
+
+    /// A web page's message at `now`; returns what goes to the motors now, if anything
+    /// (nothing while the autopilot keeps driving).
+    pub fn on_remote(&mut self, msg: &RemoteMsg, now: Duration) -> Option<Drive> {
+        let outcome = self.remote.as_mut()?.on_message(msg, now);
+        self.remote_outcome(outcome, now);
+        self.poll_after_remote(now)
+    }
+
+    /// The control tick without an autopilot command: the web page's dead-man check, then
+    /// (outside Auto) what goes to the motors.
+    pub fn poll(&mut self, now: Duration) -> Option<Drive> {
+        if let Some(o) = self.remote.as_mut().and_then(|r| r.check(now)) {
+            self.remote_outcome(o, now);
+        }
+        self.poll_after_remote(now)
+    }
+
+    fn poll_after_remote(&mut self, now: Duration) -> Option<Drive> {
+        if self.modes.mode() == Mode::Auto {
+            self.after(now);
+            None
+        } else {
+            Some(self.tick(now, None))
+        }
+    }
+
+    fn remote_outcome(&mut self, outcome: Outcome, now: Duration) {
+        match outcome {
+            Outcome::Accepted(req) => match req {
+                RemoteRequest::Drive { .. } | RemoteRequest::Heartbeat | RemoteRequest::Closed => {}
+                RemoteRequest::EmergencyStop => self.action(Action::EmergencyStop, now),
+                RemoteRequest::Mode(to) => match (self.modes.mode(), to) {
+                    (Mode::Manual, Mode::Auto) | (Mode::Auto, Mode::Manual) => {
+                        self.action(Action::ToggleAutopilot, now)
+                    }
+                    (Mode::Stopped, Mode::Manual) => self.action(Action::ClearEmergencyStop, now),
+                    (Mode::Manual | Mode::Auto, Mode::Stopped) => {
+                        self.action(Action::EmergencyStop, now)
+                    }
+                    (Mode::Stopped, Mode::Auto) => {
+                        tracing::info!("web: clear the stop (Manual) before Auto");
+                    }
+                    _ => {}
+                },
+                RemoteRequest::Gains(g) => self.modes.set_gains(g, now),
+                RemoteRequest::Record(on) => {
+                    self.recording = on && self.ensure_recorder();
+                    tracing::info!(recording = self.recording, "web: record");
+                }
+            },
+            Outcome::Refused { holder } => {
+                tracing::debug!(holder, "web: another page holds the controls")
+            }
+            Outcome::Lost { client } => {
+                if self.pad_in_use(now) {
+                    tracing::warn!(client, "web page holding the controls went away; the gamepad drives on");
+                } else {
+                    tracing::warn!(client, "web page holding the controls went away: motors stopped");
+                    self.modes.on_remote_lost(now);
+                }
+            }
+            Outcome::Ignored => {}
+        }
+    }
+
+    /// True when there is a recorder, opening it now if it is made on demand.
+    fn ensure_recorder(&mut self) -> bool {
+        if self.recorder.is_none()
+            && let Some(open) = self.open_recorder.take()
+        {
+            match open() {
+                Ok(r) => self.recorder = Some(r),
+                Err(e) => tracing::error!(error = %e, "cannot start recording"),
+            }
+        }
+        self.recorder.is_some()
+    }
+
+    /// A mode-machine action from the web page (the same rules as the gamepad's buttons).
+    fn action(&mut self, action: Action, now: Duration) {
+        self.modes.on_action(action, now);
+        if self.modes.mode() == Mode::Auto && !self.autopilot_available {
+            tracing::warn!("no model loaded: the autopilot is not available");
+            self.modes.on_action(Action::ToggleAutopilot, now);
+        }
+    }
+
+    /// A gamepad event; returns what goes to the motors now, if anything (in Auto the
+    /// autopilot's next command drives; a stick takeover is seen on that tick).
+    pub fn on_event(&mut self, event: &InputEvent, now: Duration) -> Option<Drive> {
         let action = self.modes.handle_event(&mut self.pad, event, now);
         if self.modes.mode() == Mode::Auto && !self.autopilot_available {
             tracing::warn!("no model loaded: the autopilot is not available");
@@ -79,7 +241,7 @@ impl Teleop {
         }
         match action {
             Some(Action::ToggleRecording) => {
-                self.recording = !self.recording && self.recorder.is_some();
+                self.recording = !self.recording && self.ensure_recorder();
                 tracing::info!(recording = self.recording, "record button");
             }
             Some(Action::EraseLast(n)) => {
@@ -90,13 +252,13 @@ impl Teleop {
             }
             _ => {}
         }
-        self.after(now);
-        self.modes.tick(now, &self.pad, None)
+        self.poll_after_remote(now)
     }
 
     /// The control tick (Manual commands, heartbeat, gamepad loss), or an autopilot command.
     pub fn tick(&mut self, now: Duration, autopilot: Option<WheelCommand>) -> Drive {
-        let d = self.modes.tick(now, &self.pad, autopilot);
+        let snap = self.snapshot(now);
+        let d = self.modes.tick_snapshot(now, snap, autopilot);
         self.after(now);
         d
     }

@@ -1,0 +1,116 @@
+//! `[web]`: the daemon's web page (off unless enabled; 127.0.0.1 by default; any other
+//! address always needs the token).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+/// `[web]` in the config.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WebConfig {
+    /// Serve the page (`jetpilot run`, `jetpilot record`). Off by default.
+    pub enabled: bool,
+    /// Address and port. `0.0.0.0:8887` reaches the robot from a laptop on its Wi-Fi; any
+    /// address but loopback requires the token.
+    pub bind: String,
+    /// Ask for the token on loopback too (it is always asked for elsewhere).
+    pub require_token: bool,
+    /// Where the token is kept (created on first start, mode 0600). Default: the state
+    /// directory (`$STATE_DIRECTORY` under systemd, else `$XDG_STATE_HOME/jetpilot` or
+    /// `~/.local/state/jetpilot`), file `web-token`.
+    pub token_path: Option<PathBuf>,
+    /// Most video frames per second sent to each browser.
+    pub video_fps: f32,
+    /// JPEG quality of the video, 1..=100.
+    pub jpeg_quality: u8,
+    /// Draw the model's target point (or speed/steering) and the wheel commands on the video.
+    pub overlay: bool,
+    /// The dead-man: the page holding the controls must send within this many ms.
+    pub heartbeat_ms: u64,
+    /// Browser sticks to wheels: full throttle is this much of full speed.
+    pub throttle_scale: f32,
+    /// Browser sticks to wheels: full steering adds/subtracts this much per wheel.
+    pub steering_scale: f32,
+}
+
+impl Default for WebConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            bind: "127.0.0.1:8887".into(),
+            require_token: false,
+            token_path: None,
+            video_fps: 10.0,
+            jpeg_quality: 70,
+            overlay: true,
+            heartbeat_ms: 500,
+            throttle_scale: 0.5,
+            steering_scale: 0.3,
+        }
+    }
+}
+
+impl WebConfig {
+    /// The bind address, or what is wrong with it.
+    pub fn addr(&self) -> Result<SocketAddr, String> {
+        self.bind
+            .parse::<SocketAddr>()
+            .map_err(|e| format!("{e} (an address and port, like \"127.0.0.1:8887\" or \"0.0.0.0:8887\")"))
+    }
+
+    /// True when the page asks for the token: always, except on a loopback address with
+    /// `require_token = false`.
+    pub fn token_required(&self) -> bool {
+        self.require_token || !self.addr().is_ok_and(|a| a.ip().is_loopback())
+    }
+
+    /// The token file: `token_path`, else `web-token` in the state directory.
+    pub fn token_file(&self) -> PathBuf {
+        if let Some(p) = &self.token_path {
+            return p.clone();
+        }
+        state_dir().join("web-token")
+    }
+}
+
+/// The daemon's state directory (see [`WebConfig::token_path`]).
+pub fn state_dir() -> PathBuf {
+    let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+    if let Some(d) = env("STATE_DIRECTORY") {
+        // systemd may list several, separated by ':'; the first is ours.
+        let s = d.to_string_lossy().to_string();
+        return PathBuf::from(s.split(':').next().unwrap_or(&s));
+    }
+    if let Some(d) = env("XDG_STATE_HOME") {
+        return d.join("jetpilot");
+    }
+    match env("HOME") {
+        Some(h) => h.join(".local/state/jetpilot"),
+        None => PathBuf::from("/var/lib/jetpilot"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_token_is_required_off_loopback_or_when_asked() {
+        let mut c = WebConfig::default();
+        assert!(!c.token_required());
+        c.bind = "[::1]:8887".into();
+        assert!(!c.token_required());
+        c.bind = "0.0.0.0:8887".into();
+        assert!(c.token_required());
+        c.bind = "192.168.1.20:80".into();
+        assert!(c.token_required());
+        c.bind = "127.0.0.1:8887".into();
+        c.require_token = true;
+        assert!(c.token_required());
+        c.bind = "localhost:8887".into(); // not an address: refused by validation
+        assert!(c.addr().is_err());
+        assert!(c.token_required());
+    }
+}

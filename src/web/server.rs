@@ -1,0 +1,444 @@
+//! The routes: the page, the login page, the video, the WebSocket, status JSON and
+//! `/metrics`, all but the login page behind the token when one is required.
+//!
+//! ```text
+//!  GET  /login          login page (public)          POST /login   token -> cookie
+//!  GET  /               the page                     GET  /video   MJPEG
+//!  GET  /ws             WebSocket: status out, controls in (see `ClientMsg`)
+//!  GET  /api/status     the status as JSON           GET  /metrics Prometheus text
+//! ```
+//!
+//! The server talks to the daemon only through channels: it reads the daemon's status and
+//! the encoded video from `watch` slots and sends the page's requests over a bounded
+//! `mpsc` channel that the actuator reads, so no client can hold the control loop up.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Form, Request, State};
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{Html, IntoResponse, Redirect, Response};
+use axum::routing::get;
+use serde::{Deserialize, Serialize};
+use tokio::sync::{mpsc, watch};
+
+use super::auth;
+use super::video::{self, Jpeg};
+use crate::control::SteeringGains;
+use crate::drive::DaemonStatus;
+use crate::drive::modes::Mode;
+use crate::drive::remote::{ClientId, RemoteMsg, RemoteRequest};
+
+const INDEX: &str = include_str!("assets/index.html");
+const LOGIN: &str = include_str!("assets/login.html");
+
+/// What the routes share.
+#[derive(Clone)]
+pub struct AppState {
+    /// `None`: no token asked for (loopback).
+    pub token: Option<Arc<str>>,
+    pub status: watch::Receiver<DaemonStatus>,
+    pub video: watch::Receiver<Option<Arc<Jpeg>>>,
+    pub remote: mpsc::Sender<RemoteMsg>,
+    /// The config file "save to config" writes to (`None`: saving is off).
+    pub config_path: Option<Arc<PathBuf>>,
+    pub next_client: Arc<AtomicU64>,
+    /// Sliders' and status' facts the page needs at start.
+    pub page: Arc<PageInfo>,
+}
+
+/// Static facts for the page.
+#[derive(Debug, Clone, Serialize)]
+pub struct PageInfo {
+    pub heartbeat_ms: u64,
+    pub output: &'static str,
+    pub config: Option<String>,
+}
+
+/// The router with every route.
+pub fn router(state: AppState) -> Router {
+    let protected = Router::new()
+        .route("/", get(index))
+        .route("/video", get(video_stream))
+        .route("/ws", get(ws))
+        .route("/api/status", get(status_json))
+        .route("/metrics", get(metrics))
+        .route_layer(middleware::from_fn_with_state(state.clone(), require_token));
+    Router::new()
+        .route("/login", get(login_page).post(login))
+        .merge(protected)
+        .layer(tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+            header::CACHE_CONTROL,
+            HeaderValue::from_static("no-store"),
+        ))
+        .with_state(state)
+}
+
+/// The token check. A browser without it is sent to the login page; everything else gets
+/// 401. `/?token=...` sets the cookie and redirects to `/` (the link printed in the log).
+async fn require_token(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    let Some(expected) = s.token.as_deref() else {
+        return next.run(req).await;
+    };
+    let given = auth::presented(req.headers(), req.uri().query());
+    if given.as_deref().is_some_and(|g| auth::same(g, expected)) {
+        let from_query = auth::query_token(req.uri().query()).is_some();
+        if req.uri().path() == "/" && from_query {
+            let mut r = Redirect::to("/").into_response();
+            if let Ok(v) = HeaderValue::from_str(&auth::cookie(expected)) {
+                r.headers_mut().insert(header::SET_COOKIE, v);
+            }
+            return r;
+        }
+        return next.run(req).await;
+    }
+    if req.uri().path() == "/" {
+        return Redirect::to("/login").into_response();
+    }
+    let why = if given.is_some() { "wrong token" } else { "token required" };
+    (StatusCode::UNAUTHORIZED, why).into_response()
+}
+
+async fn login_page() -> Html<&'static str> {
+    Html(LOGIN)
+}
+
+#[derive(Deserialize)]
+struct LoginForm {
+    token: String,
+}
+
+async fn login(State(s): State<AppState>, Form(f): Form<LoginForm>) -> Response {
+    match s.token.as_deref() {
+        Some(expected) if !auth::same(f.token.trim(), expected) => {
+            (StatusCode::UNAUTHORIZED, Html(LOGIN.replace("<!--error-->", "<p class=\"err\">Wrong token.</p>"))).into_response()
+        }
+        Some(expected) => {
+            let mut r = Redirect::to("/").into_response();
+            if let Ok(v) = HeaderValue::from_str(&auth::cookie(expected)) {
+                r.headers_mut().insert(header::SET_COOKIE, v);
+            }
+            r
+        }
+        None => Redirect::to("/").into_response(),
+    }
+}
+
+async fn index(State(s): State<AppState>) -> Html<String> {
+    let info = serde_json::to_string(s.page.as_ref()).unwrap_or_else(|_| "{}".into());
+    Html(INDEX.replace("/*PAGE_INFO*/{}", &info))
+}
+
+async fn video_stream(State(s): State<AppState>) -> Response {
+    let body = Body::from_stream(video::stream(s.video.clone()));
+    Response::builder()
+        .header(
+            header::CONTENT_TYPE,
+            format!("multipart/x-mixed-replace; boundary={}", video::BOUNDARY),
+        )
+        .body(body)
+        .unwrap_or_else(|_| StatusCode::INTERNAL_SERVER_ERROR.into_response())
+}
+
+async fn metrics(State(s): State<AppState>) -> impl IntoResponse {
+    let text = super::metrics::render(&s.status.borrow());
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text)
+}
+
+async fn status_json(State(s): State<AppState>) -> impl IntoResponse {
+    let view = StatusView::new(&s.status.borrow(), None);
+    axum::Json(view)
+}
+
+/// The status as the page sees it.
+#[derive(Debug, Serialize)]
+pub struct StatusView {
+    #[serde(rename = "type")]
+    kind: &'static str,
+    pub mode: String,
+    pub elapsed_s: f32,
+    pub fps: f32,
+    pub frames_captured: u64,
+    pub frames_skipped: u64,
+    pub commands_written: u64,
+    pub watchdog_stops: u64,
+    pub interventions: u64,
+    /// The paper's autonomy value so far, % (`None` before the first second).
+    pub autonomy: Option<f32>,
+    pub recording: bool,
+    pub records: u64,
+    pub gains: SteeringGains,
+    pub wheels: [f32; 2],
+    /// preprocess, inference, control, actuate, frame age: mean ms over the last status period.
+    pub latency_ms: [Option<f32>; 5],
+    pub autopilot_available: bool,
+    /// `free`, `yours` or `taken`.
+    pub controls: &'static str,
+}
+
+impl StatusView {
+    pub fn new(s: &DaemonStatus, me: Option<ClientId>) -> Self {
+        let controls = match (s.remote_holder, me) {
+            (None, _) => "free",
+            (Some(h), Some(m)) if h == m => "yours",
+            _ => "taken",
+        };
+        let autonomy = (s.elapsed_s >= 1.0)
+            .then(|| crate::sim::reward::autonomy(s.interventions as u32, s.elapsed_s))
+            .filter(|a| a.is_finite());
+        Self {
+            kind: "status",
+            mode: s.mode.clone(),
+            elapsed_s: s.elapsed_s,
+            fps: s.commands_per_s,
+            frames_captured: s.frames_captured,
+            frames_skipped: s.frames_skipped,
+            commands_written: s.commands_written,
+            watchdog_stops: s.watchdog_stops,
+            interventions: s.interventions,
+            autonomy,
+            recording: s.recording,
+            records: s.records,
+            gains: s.gains,
+            wheels: [s.last.left, s.last.right],
+            latency_ms: s.recent_ms,
+            autopilot_available: s.autopilot_available,
+            controls,
+        }
+    }
+}
+
+/// What a page sends over the WebSocket (JSON, `type` names the variant).
+#[derive(Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClientMsg {
+    /// Sticks, -1..=1; at 10 Hz while the page holds the controls (also the heartbeat).
+    Drive { throttle: f32, steering: f32 },
+    Heartbeat,
+    /// `manual`, `auto` or `stopped`.
+    Mode { mode: String },
+    /// The emergency stop (any page may press it).
+    Estop,
+    Gains {
+        speed_gain: f32,
+        steering_gain: f32,
+        steering_kd: f32,
+        steering_bias: f32,
+        steering_ki: f32,
+    },
+    Record { on: bool },
+    /// Write the daemon's gains into the config file.
+    Save,
+}
+
+impl ClientMsg {
+    /// The daemon request, or what is wrong with the message.
+    fn request(&self, current: &SteeringGains) -> Result<Option<RemoteRequest>, String> {
+        Ok(Some(match self {
+            ClientMsg::Drive { throttle, steering } => RemoteRequest::Drive {
+                throttle: *throttle,
+                steering: *steering,
+            },
+            ClientMsg::Heartbeat => RemoteRequest::Heartbeat,
+            ClientMsg::Mode { mode } => RemoteRequest::Mode(match mode.as_str() {
+                "manual" => Mode::Manual,
+                "auto" => Mode::Auto,
+                "stopped" => Mode::Stopped,
+                other => return Err(format!("unknown mode {other:?} (manual, auto, stopped)")),
+            }),
+            ClientMsg::Estop => RemoteRequest::EmergencyStop,
+            ClientMsg::Gains {
+                speed_gain,
+                steering_gain,
+                steering_kd,
+                steering_bias,
+                steering_ki,
+            } => RemoteRequest::Gains(SteeringGains {
+                speed_gain: *speed_gain,
+                steering_gain: *steering_gain,
+                steering_kd: *steering_kd,
+                steering_bias: *steering_bias,
+                steering_ki: *steering_ki,
+                integral_limit: current.integral_limit,
+            }),
+            ClientMsg::Record { on } => RemoteRequest::Record(*on),
+            ClientMsg::Save => return Ok(None),
+        }))
+    }
+}
+
+async fn ws(State(s): State<AppState>, upgrade: WebSocketUpgrade) -> Response {
+    let id = s.next_client.fetch_add(1, Ordering::Relaxed) + 1;
+    upgrade.on_upgrade(move |socket| client(socket, s, id))
+}
+
+/// Tells the daemon a page has gone, whatever way its task ends.
+struct Goodbye {
+    tx: mpsc::Sender<RemoteMsg>,
+    id: ClientId,
+}
+
+impl Drop for Goodbye {
+    fn drop(&mut self) {
+        let msg = RemoteMsg {
+            client: self.id,
+            request: RemoteRequest::Closed,
+        };
+        if self.tx.try_send(msg).is_err() {
+            // Full queue: deliver it from a task (the dead-man stops the car meanwhile).
+            let tx = self.tx.clone();
+            if let Ok(h) = tokio::runtime::Handle::try_current() {
+                h.spawn(async move {
+                    let _ = tx.send(msg).await;
+                });
+            }
+        }
+    }
+}
+
+/// Sending to a page that does not read for this long closes its socket.
+const SEND_TIMEOUT: Duration = Duration::from_secs(2);
+
+async fn send(socket: &mut WebSocket, text: String) -> bool {
+    matches!(
+        tokio::time::timeout(SEND_TIMEOUT, socket.send(Message::Text(text.into()))).await,
+        Ok(Ok(()))
+    )
+}
+
+fn json<T: Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|_| "{}".into())
+}
+
+async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
+    let _goodbye = Goodbye {
+        tx: s.remote.clone(),
+        id,
+    };
+    tracing::info!(client = id, "web page connected");
+    let mut status = s.status.clone();
+    status.mark_changed();
+    if !send(&mut socket, json(&serde_json::json!({"type": "hello", "client": id}))).await {
+        return;
+    }
+    loop {
+        tokio::select! {
+            changed = status.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                let view = StatusView::new(&status.borrow_and_update(), Some(id));
+                if !send(&mut socket, json(&view)).await {
+                    break;
+                }
+            }
+            msg = socket.recv() => {
+                let text = match msg {
+                    Some(Ok(Message::Text(t))) => t,
+                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
+                    Some(Ok(_)) => continue,
+                };
+                let reply = handle(&s, id, text.as_str()).await;
+                if let Some(r) = reply
+                    && !send(&mut socket, r).await
+                {
+                    break;
+                }
+            }
+        }
+    }
+    tracing::info!(client = id, "web page disconnected");
+}
+
+/// One message from page `id`; returns a reply for the page, if any.
+async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
+    let error = |m: String| Some(json(&serde_json::json!({"type": "error", "message": m})));
+    let msg: ClientMsg = match serde_json::from_str(text) {
+        Ok(m) => m,
+        Err(e) => return error(format!("bad message: {e}")),
+    };
+    let (gains, holder) = {
+        let st = s.status.borrow();
+        (st.gains, st.remote_holder)
+    };
+    match msg.request(&gains) {
+        Err(e) => error(e),
+        Ok(Some(request)) => {
+            if let Some(h) = holder.filter(|&h| h != id)
+                && !matches!(request, RemoteRequest::EmergencyStop)
+            {
+                // The daemon refuses it too; say so once per message kind that needs control.
+                if !matches!(request, RemoteRequest::Drive { .. } | RemoteRequest::Heartbeat) {
+                    return error(format!("another page (client {h}) holds the controls"));
+                }
+            }
+            if s.remote.send(RemoteMsg { client: id, request }).await.is_err() {
+                return error("the daemon is shutting down".into());
+            }
+            None
+        }
+        Ok(None) => {
+            // Save: only the page holding the controls, or any page while nobody holds them.
+            if let Some(h) = holder.filter(|&h| h != id) {
+                return error(format!("another page (client {h}) holds the controls"));
+            }
+            let Some(path) = s.config_path.clone() else {
+                return error("saving is off: the daemon was not started from a config file".into());
+            };
+            let result = tokio::task::spawn_blocking(move || {
+                super::save::save_gains(&path, &gains).map(|()| path)
+            })
+            .await;
+            match result {
+                Ok(Ok(path)) => {
+                    tracing::info!(path = %path.display(), ?gains, "web: gains saved to the config");
+                    Some(json(&serde_json::json!({"type": "saved", "path": path.display().to_string()})))
+                }
+                Ok(Err(e)) => error(e.to_string()),
+                Err(e) => error(format!("saving failed: {e}")),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn client_messages_parse_and_bad_ones_are_named() {
+        let m: ClientMsg = serde_json::from_str(r#"{"type":"drive","throttle":0.5,"steering":-0.2}"#).unwrap();
+        assert_eq!(m, ClientMsg::Drive { throttle: 0.5, steering: -0.2 });
+        let g = SteeringGains::default();
+        let m: ClientMsg = serde_json::from_str(r#"{"type":"mode","mode":"auto"}"#).unwrap();
+        assert_eq!(m.request(&g), Ok(Some(RemoteRequest::Mode(Mode::Auto))));
+        let m: ClientMsg = serde_json::from_str(r#"{"type":"mode","mode":"fast"}"#).unwrap();
+        assert!(m.request(&g).unwrap_err().contains("fast"));
+        assert!(serde_json::from_str::<ClientMsg>(r#"{"type":"fly"}"#).is_err());
+        assert!(serde_json::from_str::<ClientMsg>(r#"{"type":"drive","throttle":1}"#).is_err());
+        let m: ClientMsg = serde_json::from_str(r#"{"type":"save"}"#).unwrap();
+        assert_eq!(m.request(&g), Ok(None));
+    }
+
+    #[test]
+    fn the_status_view_says_whose_controls_they_are() {
+        let mut st = DaemonStatus {
+            elapsed_s: 60.0,
+            interventions: 1,
+            ..Default::default()
+        };
+        assert_eq!(StatusView::new(&st, Some(3)).controls, "free");
+        st.remote_holder = Some(3);
+        assert_eq!(StatusView::new(&st, Some(3)).controls, "yours");
+        assert_eq!(StatusView::new(&st, Some(4)).controls, "taken");
+        // One intervention in 60 s: (1 - 6/60) * 100 = 90 %.
+        let a = StatusView::new(&st, None).autonomy.unwrap();
+        assert!((a - 90.0).abs() < 1e-4, "{a}");
+    }
+}
