@@ -127,10 +127,12 @@ pub struct DaemonStatus {
     pub frames_skipped: u64,
     pub stale_dropped: u64,
     pub watchdog_stops: u64,
-    /// Autopilot commands written per second since the previous status.
+    /// Model outputs (fresh autopilot commands, written or not) per second since the
+    /// previous status.
     pub commands_per_s: f32,
     /// Stage latencies for the whole run (the means since the previous status are
-    /// `recent_ms`).
+    /// `recent_ms`): preprocess, inference and control for every fresh model output,
+    /// actuate and frame age for those written to the motors.
     pub histograms: StageHistograms,
     /// Mean latency per stage since the previous status, ms (`None`: no sample).
     pub recent_ms: [Option<f32>; 5],
@@ -501,11 +503,17 @@ impl Actuator<'_> {
             return Ok(());
         }
         let t0 = self.clock.now();
+        // The model's stages ran whoever drives: counted for every fresh command.
+        let h = &mut self.histograms;
+        h.preprocess.observe(cmd.preprocess);
+        h.inference.observe(cmd.inference);
+        h.control.observe(cmd.control);
         let sent = match self.teleop.as_mut() {
             Some(t) => {
                 let d = t.tick(t0, Some(cmd.wheels));
                 t.record(&cmd, teleop::drive_wheels(d));
                 if matches!(d, modes::Drive::Stop) {
+                    self.publish_live(&cmd, crate::control::WheelCommand::STOP);
                     return self.apply(d);
                 }
                 teleop::drive_wheels(d)
@@ -525,21 +533,9 @@ impl Actuator<'_> {
         self.stats.actuate.push(actuate);
         self.stats.frame_age.push(age);
         let h = &mut self.histograms;
-        h.preprocess.observe(cmd.preprocess);
-        h.inference.observe(cmd.inference);
-        h.control.observe(cmd.control);
         h.actuate.observe(actuate);
         h.frame_age.observe(age);
-        if let Some(tx) = &self.live {
-            tx.send_replace(Some(LiveFrame {
-                seq: cmd.seq,
-                width: cmd.width,
-                height: cmd.height,
-                rgb: cmd.frame.clone(),
-                outputs: cmd.outputs,
-                wheels: sent,
-            }));
-        }
+        self.publish_live(&cmd, sent);
         tracing::debug!(
             seq = cmd.seq,
             x = cmd.outputs[0],
@@ -550,6 +546,20 @@ impl Actuator<'_> {
             "command"
         );
         Ok(())
+    }
+
+    /// Offers the frame of `cmd` and what went out for it to the web page (a pointer copy).
+    fn publish_live(&self, cmd: &Command, sent: crate::control::WheelCommand) {
+        if let Some(tx) = &self.live {
+            tx.send_replace(Some(LiveFrame {
+                seq: cmd.seq,
+                width: cmd.width,
+                height: cmd.height,
+                rgb: cmd.frame.clone(),
+                outputs: cmd.outputs,
+                wheels: sent,
+            }));
+        }
     }
 
     /// Writes what the mode machine decided: a command (fresh: feeds the watchdog) or a
@@ -593,7 +603,7 @@ impl Actuator<'_> {
                 None => ("auto".to_string(), 0, self.gains, (false, 0), true, None),
             };
         let (then, then_cmds, then_h) = self.published;
-        let autopilot_cmds = self.histograms.actuate.count;
+        let autopilot_cmds = self.histograms.inference.count;
         let dt = now.saturating_sub(then).as_secs_f32();
         let h = self.histograms;
         let recent = |a: &stats::Histogram, b: &stats::Histogram| a.mean_since(b).map(|v| v as f32);
