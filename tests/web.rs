@@ -18,8 +18,8 @@ use jetpilot::drive::modes::{ModeParams, Modes};
 use jetpilot::drive::remote::{RemoteControl, RemoteScales};
 use jetpilot::drive::teleop::TeleopParts;
 use jetpilot::drive::{self, DaemonStatus, DriveParams, Outcome, Parts};
-use jetpilot::hw::gamepad::{GamepadConfig, GamepadMap, GamepadState};
 use jetpilot::hw::LogMotors;
+use jetpilot::hw::gamepad::{GamepadConfig, GamepadMap, GamepadState};
 use jetpilot::hw::motors::{MotorEvent, MotorRecord};
 use jetpilot::policy::ModelContract;
 use jetpilot::policy::contract::OutputKind;
@@ -62,7 +62,14 @@ fn noise_frames(dir: &Path, n: usize, w: u32, h: u32) -> std::path::PathBuf {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     for i in 0..n {
         let rgb: Vec<u8> = (0..w * h * 3).map(|_| rng.random()).collect();
-        image::save_buffer(out.join(format!("n{i:02}.png")), &rgb, w, h, image::ExtendedColorType::Rgb8).unwrap();
+        image::save_buffer(
+            out.join(format!("n{i:02}.png")),
+            &rgb,
+            w,
+            h,
+            image::ExtendedColorType::Rgb8,
+        )
+        .unwrap();
     }
     out
 }
@@ -154,7 +161,11 @@ impl Rig {
         }
         if let Some(r) = self.run.take() {
             let outcome = r.await.unwrap();
-            assert!(outcome.is_ok(), "the run failed: {:?}", outcome.err().map(|e| e.0));
+            assert!(
+                outcome.is_ok(),
+                "the run failed: {:?}",
+                outcome.err().map(|e| e.0)
+            );
         }
         if let Some(s) = self.server.take() {
             s.stop().await;
@@ -170,9 +181,12 @@ impl Rig {
     }
 
     async fn ws(&self, cookie: Option<&str>) -> Result<Ws, tokio_tungstenite::tungstenite::Error> {
-        let mut req = format!("ws://{}/ws", self.addr).into_client_request().unwrap();
+        let mut req = format!("ws://{}/ws", self.addr)
+            .into_client_request()
+            .unwrap();
         if let Some(c) = cookie {
-            req.headers_mut().insert("Cookie", format!("jetpilot_token={c}").parse().unwrap());
+            req.headers_mut()
+                .insert("Cookie", format!("jetpilot_token={c}").parse().unwrap());
         }
         let (ws, _) = tokio_tungstenite::connect_async(req).await?;
         Ok(ws)
@@ -188,7 +202,10 @@ impl Rig {
                     return s.clone();
                 }
             }
-            if tokio::time::timeout_at(deadline, self.status.changed()).await.is_err() {
+            if tokio::time::timeout_at(deadline, self.status.changed())
+                .await
+                .is_err()
+            {
                 panic!("status never got there: {:?}", self.status.borrow());
             }
         }
@@ -198,7 +215,9 @@ impl Rig {
 type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<TcpStream>>;
 
 async fn say(ws: &mut Ws, json: &str) {
-    ws.send(Message::Text(json.to_string().into())).await.unwrap();
+    ws.send(Message::Text(json.to_string().into()))
+        .await
+        .unwrap();
 }
 
 /// Sends `drive` messages at 10 Hz for `secs`; returns when the last went out.
@@ -206,7 +225,11 @@ async fn drive_for(ws: &mut Ws, clock: &Arc<dyn Clock>, throttle: f32, secs: f32
     let n = (secs * 10.0) as usize;
     let mut last = clock.now();
     for _ in 0..n {
-        say(ws, &format!(r#"{{"type":"drive","throttle":{throttle},"steering":0}}"#)).await;
+        say(
+            ws,
+            &format!(r#"{{"type":"drive","throttle":{throttle},"steering":0}}"#),
+        )
+        .await;
         last = clock.now();
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
@@ -249,7 +272,12 @@ fn stop_after(events: &[(Duration, MotorEvent)], t: Duration) -> (Duration, bool
         .iter()
         .find(|(at, e)| *at >= t && *e == MotorEvent::Stop)
         .map(|(at, _)| *at)
-        .unwrap_or_else(|| panic!("no stop after {t:?}: {:?}", &events[events.len().saturating_sub(5)..]));
+        .unwrap_or_else(|| {
+            panic!(
+                "no stop after {t:?}: {:?}",
+                &events[events.len().saturating_sub(5)..]
+            )
+        });
     let moved = events
         .iter()
         .any(|(at, e)| *at > stop && matches!(e, MotorEvent::Drive(c) if !c.is_stop()));
@@ -289,7 +317,10 @@ async fn every_route_but_login_asks_for_the_token() {
     let file = std::fs::read_to_string(state.path().join("state/web-token")).unwrap();
     assert_eq!(file.trim(), token);
     use std::os::unix::fs::PermissionsExt;
-    let mode = std::fs::metadata(state.path().join("state/web-token")).unwrap().permissions().mode();
+    let mode = std::fs::metadata(state.path().join("state/web-token"))
+        .unwrap()
+        .permissions()
+        .mode();
     assert_eq!(mode & 0o777, 0o600);
 
     let cookie = format!("Cookie: jetpilot_token={token}\r\n");
@@ -307,7 +338,12 @@ async fn every_route_but_login_asks_for_the_token() {
     assert_eq!(code, 303);
     assert!(head.contains("location: /login"), "{head}");
     // With the token: cookie, bearer or query.
-    for (path, how) in [("/", &cookie), ("/api/status", &bearer), ("/metrics", &cookie), ("/video", &bearer)] {
+    for (path, how) in [
+        ("/", &cookie),
+        ("/api/status", &bearer),
+        ("/metrics", &cookie),
+        ("/video", &bearer),
+    ] {
         let (code, head) = http(rig.addr, &get(path, how)).await;
         assert_eq!(code, 200, "{path}: {head}");
     }
@@ -316,7 +352,12 @@ async fn every_route_but_login_asks_for_the_token() {
     // `/?token=` sets the cookie and redirects to the page.
     let (code, head) = http(rig.addr, &get(&format!("/?token={token}"), "")).await;
     assert_eq!(code, 303);
-    assert!(head.contains(&format!("set-cookie: jetpilot_token={token}; Path=/; HttpOnly; SameSite=Strict")), "{head}");
+    assert!(
+        head.contains(&format!(
+            "set-cookie: jetpilot_token={token}; Path=/; HttpOnly; SameSite=Strict"
+        )),
+        "{head}"
+    );
     // The login page is public; a wrong token is refused, the right one sets the cookie.
     let (code, _) = http(rig.addr, &get("/login", "")).await;
     assert_eq!(code, 200);
@@ -377,20 +418,35 @@ async fn a_page_that_falls_silent_stops_the_motors() {
     let mut ws = rig.ws(None).await.unwrap();
     let last = drive_for(&mut ws, &rig.clock, 1.0, 1.0).await;
     // Full throttle: 0.5 on both wheels (throttle_scale), while the page drives.
-    assert!(drove(&rig.events(), WheelCommand::new(0.5, 0.5)) >= 5, "{:?}", rig.events());
+    assert!(
+        drove(&rig.events(), WheelCommand::new(0.5, 0.5)) >= 5,
+        "{:?}",
+        rig.events()
+    );
     // Silence, with the socket still open.
     tokio::time::sleep(Duration::from_millis(1200)).await;
     let (stop, moved) = stop_after(&rig.events(), last);
     let after = stop.saturating_sub(last);
     eprintln!("stop written {after:?} after the page's last message");
-    assert!(after <= HEARTBEAT + WATCHDOG, "stopped {after:?} after the last message");
-    assert!(after >= HEARTBEAT - Duration::from_millis(100), "stopped too early: {after:?}");
+    assert!(
+        after <= HEARTBEAT + WATCHDOG,
+        "stopped {after:?} after the last message"
+    );
+    assert!(
+        after >= HEARTBEAT - Duration::from_millis(100),
+        "stopped too early: {after:?}"
+    );
     assert!(!moved, "the motors moved after the dead-man stop");
     let s = rig.wait_status(2.0, |s| s.mode == "stopped").await;
     assert_eq!(s.remote_holder, None);
     // Latched: driving again does nothing until the stop is cleared.
     let t = drive_for(&mut ws, &rig.clock, 1.0, 0.5).await;
-    assert!(!rig.events().iter().any(|(at, e)| *at > t - Duration::from_millis(500) && matches!(e, MotorEvent::Drive(c) if !c.is_stop())));
+    assert!(
+        !rig.events()
+            .iter()
+            .any(|(at, e)| *at > t - Duration::from_millis(500)
+                && matches!(e, MotorEvent::Drive(c) if !c.is_stop()))
+    );
     say(&mut ws, r#"{"type":"mode","mode":"manual"}"#).await;
     let before = drove(&rig.events(), WheelCommand::new(0.5, 0.5));
     drive_for(&mut ws, &rig.clock, 1.0, 0.6).await;
@@ -415,8 +471,14 @@ async fn a_page_that_closes_stops_the_motors() {
     eprintln!("stop written {after:?} after the page closed");
     // The deadline is 0.5 s + one watchdog period; a close is seen at once, not by the
     // heartbeat's timeout.
-    assert!(after <= HEARTBEAT + WATCHDOG, "stopped {after:?} after the close");
-    assert!(after < WATCHDOG, "the close was not seen at once: {after:?}");
+    assert!(
+        after <= HEARTBEAT + WATCHDOG,
+        "stopped {after:?} after the close"
+    );
+    assert!(
+        after < WATCHDOG,
+        "the close was not seen at once: {after:?}"
+    );
     assert!(!moved);
     let s = rig.finish().await;
     assert_eq!(s.mode, "stopped");
@@ -432,16 +494,25 @@ async fn a_slider_changes_the_gains_the_autopilot_drives_with_and_save_writes_th
         say(&mut ws, r#"{"type":"heartbeat"}"#).await;
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    assert!(drove(&rig.events(), WheelCommand::new(0.3, 0.3)) >= 3, "{:?}", &rig.events());
+    assert!(
+        drove(&rig.events(), WheelCommand::new(0.3, 0.3)) >= 3,
+        "{:?}",
+        &rig.events()
+    );
     say(&mut ws, r#"{"type":"gains","speed_gain":0.45,"steering_gain":0.25,"steering_kd":0.01,"steering_bias":0.0,"steering_ki":0.0}"#).await;
-    let s = rig.wait_status(2.0, |s| (s.gains.speed_gain - 0.45).abs() < 1e-6).await;
+    let s = rig
+        .wait_status(2.0, |s| (s.gains.speed_gain - 0.45).abs() < 1e-6)
+        .await;
     assert_eq!(s.gains.steering_gain, 0.25);
     assert_eq!(s.mode, "auto");
     for _ in 0..8 {
         say(&mut ws, r#"{"type":"heartbeat"}"#).await;
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    assert!(drove(&rig.events(), WheelCommand::new(0.45, 0.45)) >= 3, "the autopilot did not take the new speed_gain");
+    assert!(
+        drove(&rig.events(), WheelCommand::new(0.45, 0.45)) >= 3,
+        "the autopilot did not take the new speed_gain"
+    );
     // Out of range is clamped to the config's range.
     say(&mut ws, r#"{"type":"gains","speed_gain":3.0,"steering_gain":0.25,"steering_kd":0.01,"steering_bias":0.0,"steering_ki":0.0}"#).await;
     rig.wait_status(2.0, |s| s.gains.speed_gain == 1.0).await;
@@ -450,7 +521,11 @@ async fn a_slider_changes_the_gains_the_autopilot_drives_with_and_save_writes_th
     // Save: the config file gets the gains, its comment kept.
     say(&mut ws, r#"{"type":"save"}"#).await;
     let reply = loop {
-        let m = tokio::time::timeout(Duration::from_secs(5), ws.next()).await.unwrap().unwrap().unwrap();
+        let m = tokio::time::timeout(Duration::from_secs(5), ws.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
         let t = m.to_text().unwrap().to_string();
         if t.contains("\"saved\"") || t.contains("\"error\"") {
             break t;
@@ -464,7 +539,11 @@ async fn a_slider_changes_the_gains_the_autopilot_drives_with_and_save_writes_th
     let mut other = rig.ws(None).await.unwrap();
     say(&mut other, r#"{"type":"mode","mode":"manual"}"#).await;
     let refused = loop {
-        let m = tokio::time::timeout(Duration::from_secs(5), other.next()).await.unwrap().unwrap().unwrap();
+        let m = tokio::time::timeout(Duration::from_secs(5), other.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
         let t = m.to_text().unwrap().to_string();
         if t.contains("\"error\"") {
             break t;
@@ -474,7 +553,10 @@ async fn a_slider_changes_the_gains_the_autopilot_drives_with_and_save_writes_th
     assert_eq!(rig.status.borrow().mode, "auto");
     say(&mut other, r#"{"type":"estop"}"#).await;
     let s = rig.wait_status(2.0, |s| s.mode == "stopped").await;
-    assert_eq!(s.interventions, 1, "an emergency stop in Auto is an intervention");
+    assert_eq!(
+        s.interventions, 1,
+        "an emergency stop in Auto is an intervention"
+    );
     drop(other);
     drop(ws);
     rig.finish().await;
@@ -517,11 +599,21 @@ async fn clients_that_never_read_cost_the_control_loop_nothing() {
     let writes: Vec<Duration> = rig
         .events()
         .iter()
-        .filter(|(at, e)| *at > start + Duration::from_millis(300) && *at < end && matches!(e, MotorEvent::Drive(_)))
+        .filter(|(at, e)| {
+            *at > start + Duration::from_millis(300)
+                && *at < end
+                && matches!(e, MotorEvent::Drive(_))
+        })
         .map(|(at, _)| *at)
         .collect();
-    let span = end.saturating_sub(start + Duration::from_millis(300)).as_secs_f32();
-    assert!(writes.len() as f32 >= span * 20.0 * 0.6, "{} writes in {span:.1} s", writes.len());
+    let span = end
+        .saturating_sub(start + Duration::from_millis(300))
+        .as_secs_f32();
+    assert!(
+        writes.len() as f32 >= span * 20.0 * 0.6,
+        "{} writes in {span:.1} s",
+        writes.len()
+    );
     let gap = writes.windows(2).map(|w| w[1] - w[0]).max().unwrap();
     assert!(gap < WATCHDOG, "a {gap:?} gap between motor writes");
     drop(stuck);

@@ -8,8 +8,8 @@ use std::time::Duration;
 use anyhow::Context;
 use jetpilot::clock::{Clock, MonotonicClock};
 use jetpilot::config::Config;
-use jetpilot::drive::{self, DriveParams, Parts, RunEnd, setup};
 use jetpilot::drive::remote::{RemoteControl, RemoteMsg, RemoteScales};
+use jetpilot::drive::{self, DriveParams, Parts, RunEnd, setup};
 use jetpilot::policy::Policy;
 use jetpilot::web::{WebLinks, WebServer};
 
@@ -28,11 +28,17 @@ pub struct RunArgs {
     /// without touching the motors.
     #[arg(long)]
     dry_run: bool,
+    /// Serve the web page (video, gain sliders, modes, browser driving), as `[web]
+    /// enabled = true`; ADDR overrides `web.bind` (default 127.0.0.1:8887; any other
+    /// address needs the token, printed to the log when it is made).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "")]
+    web: Option<String>,
 }
 
 #[derive(Debug, clap::Args)]
 pub struct RecordArgs {
-    /// Config file; it needs a `[gamepad]` section, and `[record] path` says where the tub goes.
+    /// Config file; it needs a `[gamepad]` section (or the web page: `--web`), and
+    /// `[record] path` says where the tub goes.
     #[arg(short, long, value_name = "FILE")]
     config: PathBuf,
     /// A model for the autopilot button (default: none; the autopilot is then unavailable).
@@ -41,10 +47,27 @@ pub struct RecordArgs {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM).
     #[arg(long, value_name = "SECS")]
     duration: Option<f64>,
+    /// Serve the web page as well (see `jetpilot run --help`); ADDR overrides `web.bind`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "")]
+    web: Option<String>,
+}
+
+/// `--web [ADDR]` onto the config's `[web]`.
+fn with_web(mut cfg: Config, web: Option<&str>) -> anyhow::Result<Config> {
+    if let Some(addr) = web {
+        cfg.web.enabled = true;
+        if !addr.is_empty() {
+            cfg.web.bind = addr.to_string();
+        }
+        cfg.web
+            .addr()
+            .map_err(|e| anyhow::anyhow!("--web {addr:?}: {e}"))?;
+    }
+    Ok(cfg)
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
-    let cfg = Config::load(&args.config)?;
+    let cfg = with_web(Config::load(&args.config)?, args.web.as_deref())?;
     let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
     let policy = setup::load_policy(&cfg, args.model.as_deref())?;
     let source = setup::open_source(&cfg, clock.clone())?;
@@ -67,10 +90,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
 
 /// `jetpilot record`: drive with the gamepad and write demonstrations (tub v2).
 pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
-    let cfg = Config::load(&args.config)?;
-    if cfg.gamepad.is_none() {
+    let cfg = with_web(Config::load(&args.config)?, args.web.as_deref())?;
+    if cfg.gamepad.is_none() && !cfg.web.enabled {
         anyhow::bail!(
-            "config {}: recording needs a gamepad: add a [gamepad] section (profile = \"xbox\", \"f710\" or \"generic\")",
+            "config {}: recording needs someone to drive: add a [gamepad] section (profile = \"xbox\", \"f710\" or \"generic\"), or drive from the web page (--web, or [web] enabled = true)",
             args.config.display()
         );
     }
@@ -107,7 +130,7 @@ fn teleop_parts(
     use jetpilot::drive::modes::{ModeParams, Modes};
     use jetpilot::drive::recorder::Recorder;
     use jetpilot::drive::teleop::{OpenRecorder, TeleopParts, spawn_reader};
-    use jetpilot::hw::gamepad::{GamepadConfig, GamepadMap, GamepadState};
+    use jetpilot::hw::gamepad::{GamepadMap, GamepadState};
 
     if cfg.gamepad.is_none() && remote.is_none() {
         return Ok(None);
@@ -120,7 +143,7 @@ fn teleop_parts(
         }
         None => None,
     };
-    let g = cfg.gamepad.clone().unwrap_or_else(GamepadConfig::default);
+    let g = cfg.gamepad.clone().unwrap_or_default();
     let params = match &cfg.gamepad {
         Some(g) => ModeParams::from_gamepad(g),
         None => ModeParams::default(),
@@ -152,7 +175,10 @@ fn teleop_parts(
         if cfg.gamepad.is_some() || recording {
             (Some(open()?), None)
         } else {
-            (None, Some(Box::new(move || open().map_err(|e| format!("{e:#}")))))
+            (
+                None,
+                Some(Box::new(move || open().map_err(|e| format!("{e:#}")))),
+            )
         };
     let (remote, remote_rx) = match remote {
         Some((c, rx)) => (Some(c), Some(rx)),

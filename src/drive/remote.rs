@@ -28,7 +28,10 @@ pub type ClientId = u64;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum RemoteRequest {
     /// Sticks, -1..=1: throttle forward positive, steering right positive. Also the heartbeat.
-    Drive { throttle: f32, steering: f32 },
+    Drive {
+        throttle: f32,
+        steering: f32,
+    },
     /// Keeps the hold without driving (the page while it shows Auto).
     Heartbeat,
     /// Manual, Auto, or Stopped (an emergency stop); Manual from Stopped clears the stop.
@@ -58,7 +61,13 @@ pub struct RemoteScales {
 impl RemoteScales {
     /// The wheels for `(throttle, steering)`, each clamped to -1..=1 first.
     pub fn wheels(&self, throttle: f32, steering: f32) -> WheelCommand {
-        let finite = |v: f32| if v.is_finite() { v.clamp(-1.0, 1.0) } else { 0.0 };
+        let finite = |v: f32| {
+            if v.is_finite() {
+                v.clamp(-1.0, 1.0)
+            } else {
+                0.0
+            }
+        };
         let t = finite(throttle) * self.throttle_scale;
         let s = finite(steering) * self.steering_scale;
         WheelCommand::new(

@@ -133,7 +133,11 @@ impl Teleop {
     /// pad is not in use.
     fn snapshot(&self, now: Duration) -> PadSnapshot {
         let snap = self.pad.snapshot(now);
-        match self.remote.as_ref().and_then(|r| r.command().map(|c| (c, r.deflection()))) {
+        match self
+            .remote
+            .as_ref()
+            .and_then(|r| r.command().map(|c| (c, r.deflection())))
+        {
             Some((manual, deflection)) if !self.pad_in_use(now) => PadSnapshot {
                 manual,
                 deflection,
@@ -199,9 +203,15 @@ impl Teleop {
             }
             Outcome::Lost { client } => {
                 if self.pad_in_use(now) {
-                    tracing::warn!(client, "web page holding the controls went away; the gamepad drives on");
+                    tracing::warn!(
+                        client,
+                        "web page holding the controls went away; the gamepad drives on"
+                    );
                 } else {
-                    tracing::warn!(client, "web page holding the controls went away: motors stopped");
+                    tracing::warn!(
+                        client,
+                        "web page holding the controls went away: motors stopped"
+                    );
                     self.modes.on_remote_lost(now);
                 }
             }
@@ -404,5 +414,150 @@ pub fn drive_wheels(d: Drive) -> WheelCommand {
     match d {
         Drive::Stop => WheelCommand::STOP,
         Drive::Command(w) => w,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::modes::ModeParams;
+    use crate::drive::remote::{RemoteMsg, RemoteScales};
+    use crate::hw::gamepad::{GamepadMap, GamepadState};
+    use evdev::AbsoluteAxisCode;
+
+    fn ms(v: u64) -> Duration {
+        Duration::from_millis(v)
+    }
+
+    fn teleop() -> (Teleop, watch::Receiver<SteeringGains>) {
+        let cfg = GamepadConfig::default();
+        let (tx, rx) = watch::channel(SteeringGains::default());
+        let parts = TeleopParts {
+            events: None,
+            remote: Some(RemoteControl::new(
+                ms(500),
+                RemoteScales {
+                    throttle_scale: 0.5,
+                    steering_scale: 0.25,
+                },
+            )),
+            remote_rx: None,
+            pad: GamepadState::new(GamepadMap::from_config(&cfg).unwrap()),
+            modes: Modes::new(ModeParams::default(), SteeringGains::default()),
+            autopilot_available: true,
+            log: None,
+            model_hash: "t".into(),
+            recorder: None,
+            open_recorder: None,
+            recording: false,
+        };
+        (Teleop::new(parts, tx), rx)
+    }
+
+    fn web(client: u64, request: RemoteRequest) -> RemoteMsg {
+        RemoteMsg { client, request }
+    }
+
+    fn drive(t: f32, s: f32) -> RemoteRequest {
+        RemoteRequest::Drive {
+            throttle: t,
+            steering: s,
+        }
+    }
+
+    #[test]
+    fn the_page_drives_in_manual_and_a_gamepad_in_use_wins() {
+        let (mut t, _) = teleop();
+        // Throttle 1, steering 0.4: 0.5 +- 0.1.
+        let d = t.on_remote(&web(1, drive(1.0, 0.4)), ms(100));
+        assert_eq!(d, Some(Drive::Command(WheelCommand::new(0.6, 0.4))));
+        assert_eq!(t.remote_holder(), Some(1));
+        // The gamepad moves (tank drive, left stick half back): it drives now.
+        let ev = InputEvent::Axis {
+            code: AbsoluteAxisCode::ABS_Y,
+            value: 16384,
+            min: -32768,
+            max: 32767,
+        };
+        let d = t.on_event(&ev, ms(150)).unwrap();
+        let Drive::Command(w) = d else {
+            panic!("{d:?}")
+        };
+        assert!(w.left < 0.0, "the pad's command, not the page's: {w:?}");
+        // 0.5 s after the pad's last event, the page's sticks drive again.
+        t.on_remote(&web(1, drive(1.0, 0.4)), ms(600));
+        assert_eq!(
+            t.poll(ms(660)),
+            Some(Drive::Command(WheelCommand::new(0.6, 0.4)))
+        );
+    }
+
+    #[test]
+    fn losing_the_page_stops_unless_the_gamepad_is_in_use() {
+        let (mut t, _) = teleop();
+        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Auto)), ms(0));
+        assert_eq!(t.mode(), Mode::Auto);
+        assert_eq!(t.poll(ms(400)), None, "Auto: the autopilot drives");
+        assert_eq!(t.poll(ms(500)), Some(Drive::Stop), "silent for 0.5 s");
+        assert_eq!(t.mode(), Mode::Stopped);
+        assert_eq!(t.interventions(), 0, "nobody acted");
+        // The page comes back: Auto is refused until the stop is cleared.
+        t.on_remote(&web(2, RemoteRequest::Mode(Mode::Auto)), ms(600));
+        assert_eq!(t.mode(), Mode::Stopped);
+        t.on_remote(&web(2, RemoteRequest::Mode(Mode::Manual)), ms(700));
+        assert_eq!(t.mode(), Mode::Manual);
+        // With the gamepad in use, the page closing changes nothing.
+        let ev = InputEvent::Axis {
+            code: AbsoluteAxisCode::ABS_Y,
+            value: 0,
+            min: -32768,
+            max: 32767,
+        };
+        t.on_event(&ev, ms(750));
+        t.on_remote(&web(2, RemoteRequest::Closed), ms(800));
+        assert_eq!(t.mode(), Mode::Manual);
+        assert_eq!(t.remote_holder(), None);
+    }
+
+    #[test]
+    fn the_page_takes_over_from_auto_and_its_sliders_reach_the_law() {
+        let (mut t, mut gains) = teleop();
+        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Auto)), ms(0));
+        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Manual)), ms(1000));
+        assert_eq!(t.mode(), Mode::Manual);
+        assert_eq!(
+            t.interventions(),
+            1,
+            "the page took control from the autopilot"
+        );
+        let g = SteeringGains {
+            speed_gain: 0.35,
+            steering_gain: 0.5,
+            steering_kd: 0.1,
+            steering_bias: 0.05,
+            steering_ki: 0.0,
+            integral_limit: 123.0, // not the page's to change
+        };
+        t.on_remote(&web(1, RemoteRequest::Gains(g)), ms(1100));
+        assert!(gains.has_changed().unwrap());
+        let got = *gains.borrow_and_update();
+        assert_eq!(got.speed_gain, 0.35);
+        assert_eq!(got.steering_bias, 0.05);
+        assert_eq!(got.integral_limit, SteeringGains::default().integral_limit);
+        assert_eq!(t.gains(), got);
+        // A watcher cannot change them; its emergency stop works.
+        t.on_remote(
+            &web(2, RemoteRequest::Gains(SteeringGains::default())),
+            ms(1200),
+        );
+        assert_eq!(t.gains().speed_gain, 0.35);
+        assert_eq!(
+            t.on_remote(&web(2, RemoteRequest::EmergencyStop), ms(1300)),
+            Some(Drive::Stop)
+        );
+        assert_eq!(t.mode(), Mode::Stopped);
+        // Record without a recorder: stays off.
+        t.on_remote(&web(1, RemoteRequest::Record(true)), ms(1400));
+        assert_eq!(t.recording(), (false, 0));
     }
 }

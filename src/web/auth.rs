@@ -95,13 +95,19 @@ pub fn same(given: &str, expected: &str) -> bool {
 /// query, in that order.
 pub fn presented(headers: &HeaderMap, query: Option<&str>) -> Option<String> {
     let header = |name| headers.get(name).and_then(|v| v.to_str().ok());
-    if let Some(t) = header(axum::http::header::AUTHORIZATION).and_then(|v| v.strip_prefix("Bearer ")) {
+    if let Some(t) =
+        header(axum::http::header::AUTHORIZATION).and_then(|v| v.strip_prefix("Bearer "))
+    {
         return Some(t.trim().to_string());
     }
     for value in headers.get_all(axum::http::header::COOKIE) {
         let Ok(v) = value.to_str() else { continue };
         for pair in v.split(';') {
-            if let Some(t) = pair.trim().strip_prefix(COOKIE).and_then(|r| r.strip_prefix('=')) {
+            if let Some(t) = pair
+                .trim()
+                .strip_prefix(COOKIE)
+                .and_then(|r| r.strip_prefix('='))
+            {
                 return Some(t.to_string());
             }
         }

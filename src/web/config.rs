@@ -55,9 +55,9 @@ impl Default for WebConfig {
 impl WebConfig {
     /// The bind address, or what is wrong with it.
     pub fn addr(&self) -> Result<SocketAddr, String> {
-        self.bind
-            .parse::<SocketAddr>()
-            .map_err(|e| format!("{e} (an address and port, like \"127.0.0.1:8887\" or \"0.0.0.0:8887\")"))
+        self.bind.parse::<SocketAddr>().map_err(|e| {
+            format!("{e} (an address and port, like \"127.0.0.1:8887\" or \"0.0.0.0:8887\")")
+        })
     }
 
     /// True when the page asks for the token: always, except on a loopback address with
@@ -77,7 +77,11 @@ impl WebConfig {
 
 /// The daemon's state directory (see [`WebConfig::token_path`]).
 pub fn state_dir() -> PathBuf {
-    let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+    let env = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
     if let Some(d) = env("STATE_DIRECTORY") {
         // systemd may list several, separated by ':'; the first is ours.
         let s = d.to_string_lossy().to_string();

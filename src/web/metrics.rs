@@ -10,28 +10,85 @@ use crate::drive::stats::BUCKETS_MS;
 pub fn render(s: &DaemonStatus) -> String {
     let mut out = String::new();
     let mut counter = |name: &str, help: &str, v: u64| {
-        let _ = writeln!(out, "# HELP jetpilot_{name} {help}\n# TYPE jetpilot_{name} counter\njetpilot_{name} {v}");
+        let _ = writeln!(
+            out,
+            "# HELP jetpilot_{name} {help}\n# TYPE jetpilot_{name} counter\njetpilot_{name} {v}"
+        );
     };
-    counter("frames_captured_total", "Frames the camera delivered.", s.frames_captured);
-    counter("frames_skipped_total", "Frames replaced by a newer one before inference.", s.frames_skipped);
-    counter("commands_written_total", "Commands written to the motors.", s.commands_written);
-    counter("stale_commands_dropped_total", "Commands dropped because their frame was too old.", s.stale_dropped);
-    counter("watchdog_stops_total", "Motor stops by the watchdog (no fresh command in time).", s.watchdog_stops);
-    counter("interventions_total", "Human takeovers from the autopilot.", s.interventions);
-    counter("records_written_total", "Demonstration records written.", s.records);
-    let _ = writeln!(out, "# HELP jetpilot_mode The driving mode (1 for the current one).\n# TYPE jetpilot_mode gauge");
+    counter(
+        "frames_captured_total",
+        "Frames the camera delivered.",
+        s.frames_captured,
+    );
+    counter(
+        "frames_skipped_total",
+        "Frames replaced by a newer one before inference.",
+        s.frames_skipped,
+    );
+    counter(
+        "commands_written_total",
+        "Commands written to the motors.",
+        s.commands_written,
+    );
+    counter(
+        "stale_commands_dropped_total",
+        "Commands dropped because their frame was too old.",
+        s.stale_dropped,
+    );
+    counter(
+        "watchdog_stops_total",
+        "Motor stops by the watchdog (no fresh command in time).",
+        s.watchdog_stops,
+    );
+    counter(
+        "interventions_total",
+        "Human takeovers from the autopilot.",
+        s.interventions,
+    );
+    counter(
+        "records_written_total",
+        "Demonstration records written.",
+        s.records,
+    );
+    let _ = writeln!(
+        out,
+        "# HELP jetpilot_mode The driving mode (1 for the current one).\n# TYPE jetpilot_mode gauge"
+    );
     for m in ["manual", "auto", "stopped"] {
-        let _ = writeln!(out, "jetpilot_mode{{mode=\"{m}\"}} {}", u8::from(s.mode == m));
+        let _ = writeln!(
+            out,
+            "jetpilot_mode{{mode=\"{m}\"}} {}",
+            u8::from(s.mode == m)
+        );
     }
-    let _ = writeln!(out, "# HELP jetpilot_recording 1 while recording demonstrations.\n# TYPE jetpilot_recording gauge\njetpilot_recording {}", u8::from(s.recording));
-    let _ = writeln!(out, "# HELP jetpilot_uptime_seconds Seconds since the run started.\n# TYPE jetpilot_uptime_seconds gauge\njetpilot_uptime_seconds {}", s.elapsed_s);
+    let _ = writeln!(
+        out,
+        "# HELP jetpilot_recording 1 while recording demonstrations.\n# TYPE jetpilot_recording gauge\njetpilot_recording {}",
+        u8::from(s.recording)
+    );
+    let _ = writeln!(
+        out,
+        "# HELP jetpilot_uptime_seconds Seconds since the run started.\n# TYPE jetpilot_uptime_seconds gauge\njetpilot_uptime_seconds {}",
+        s.elapsed_s
+    );
     let name = "jetpilot_stage_latency_seconds";
-    let _ = writeln!(out, "# HELP {name} Per-frame time of each pipeline stage, and the frame's age when its command was written (frame_age).\n# TYPE {name} histogram");
+    let _ = writeln!(
+        out,
+        "# HELP {name} Per-frame time of each pipeline stage, and the frame's age when its command was written (frame_age).\n# TYPE {name} histogram"
+    );
     for (stage, h) in s.histograms.named() {
         for (bound, n) in BUCKETS_MS.iter().zip(h.le) {
-            let _ = writeln!(out, "{name}_bucket{{stage=\"{stage}\",le=\"{}\"}} {n}", bound / 1000.0);
+            let _ = writeln!(
+                out,
+                "{name}_bucket{{stage=\"{stage}\",le=\"{}\"}} {n}",
+                bound / 1000.0
+            );
         }
-        let _ = writeln!(out, "{name}_bucket{{stage=\"{stage}\",le=\"+Inf\"}} {}", h.count);
+        let _ = writeln!(
+            out,
+            "{name}_bucket{{stage=\"{stage}\",le=\"+Inf\"}} {}",
+            h.count
+        );
         let _ = writeln!(out, "{name}_sum{{stage=\"{stage}\"}} {}", h.sum_ms / 1000.0);
         let _ = writeln!(out, "{name}_count{{stage=\"{stage}\"}} {}", h.count);
     }

@@ -132,7 +132,11 @@ impl WebServer {
         tracing::info!(
             token = token.is_some(),
             "web page at {shown}{}",
-            if token.is_some() { " (open it with ?token=<the token>, or log in)" } else { "" }
+            if token.is_some() {
+                " (open it with ?token=<the token>, or log in)"
+            } else {
+                ""
+            }
         );
         Ok(Self {
             addr,

@@ -64,7 +64,14 @@ pub fn target_pixel(x: f32, y: f32, w: u32, h: u32) -> (i64, i64) {
 }
 
 /// Draws the overlay. A buffer of the wrong size is left alone.
-pub fn draw(rgb: &mut [u8], w: u32, h: u32, kind: OutputKind, outputs: [f32; 2], wheels: WheelCommand) {
+pub fn draw(
+    rgb: &mut [u8],
+    w: u32,
+    h: u32,
+    kind: OutputKind,
+    outputs: [f32; 2],
+    wheels: WheelCommand,
+) {
     if rgb.len() != w as usize * h as usize * 3 || w < 8 || h < 8 {
         return;
     }
@@ -89,7 +96,13 @@ pub fn draw(rgb: &mut [u8], w: u32, h: u32, kind: OutputKind, outputs: [f32; 2],
             c.rect(half, unit, half + len, 2 * unit, YELLOW);
             // Speed: a bar up from the bottom centre.
             let up = (outputs[0].clamp(0.0, 1.0) * (c.h / 2) as f32) as i64;
-            c.rect(half - unit / 2, c.h - 1 - up, half + unit / 2, c.h - 1, GREEN);
+            c.rect(
+                half - unit / 2,
+                c.h - 1 - up,
+                half + unit / 2,
+                c.h - 1,
+                GREEN,
+            );
         }
         _ => {}
     }
@@ -122,7 +135,14 @@ mod tests {
         assert_eq!(target_pixel(0.5, -0.25, 200, 100), (150, 38));
         let (w, h) = (64, 64);
         let mut rgb = vec![0u8; 64 * 64 * 3];
-        draw(&mut rgb, w, h, OutputKind::Xy, [0.5, -0.5], WheelCommand::new(0.5, -0.5));
+        draw(
+            &mut rgb,
+            w,
+            h,
+            OutputKind::Xy,
+            [0.5, -0.5],
+            WheelCommand::new(0.5, -0.5),
+        );
         let (tx, ty) = target_pixel(0.5, -0.5, w, h);
         assert_eq!(px(&rgb, w, tx as u32, ty as u32), GREEN);
         // Left wheel forward: green above the middle; right backward: red below it.
@@ -134,10 +154,24 @@ mod tests {
     #[test]
     fn bad_sizes_and_non_finite_outputs_draw_nothing_harmful() {
         let mut small = vec![7u8; 10];
-        draw(&mut small, 64, 64, OutputKind::Xy, [0.0, 0.0], WheelCommand::STOP);
+        draw(
+            &mut small,
+            64,
+            64,
+            OutputKind::Xy,
+            [0.0, 0.0],
+            WheelCommand::STOP,
+        );
         assert_eq!(small, vec![7u8; 10]);
         let mut rgb = vec![0u8; 32 * 32 * 3];
-        draw(&mut rgb, 32, 32, OutputKind::SpeedSteering, [f32::NAN, 0.0], WheelCommand::new(f32::NAN, 0.0));
+        draw(
+            &mut rgb,
+            32,
+            32,
+            OutputKind::SpeedSteering,
+            [f32::NAN, 0.0],
+            WheelCommand::new(f32::NAN, 0.0),
+        );
         // Only the right wheel's zero-length bar (at the middle row) is drawn.
         assert!(rgb.iter().filter(|&&b| b != 0).count() <= 3 * 3 * 2);
     }

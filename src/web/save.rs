@@ -69,8 +69,14 @@ pub fn save_gains(path: &Path, g: &SteeringGains) -> Result<(), SaveError> {
             why: format!("the result would not load: {e}"),
         }
     })?;
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.jetpilot-save"));
     let perms = std::fs::metadata(path).map_err(io)?.permissions();
     let write = || -> std::io::Result<()> {
@@ -109,8 +115,14 @@ mod tests {
     fn gains_replace_values_and_keep_comments_and_other_keys() {
         let text = "# my robot\n[camera]\nfps = 30.0\n\n[control]\nspeed_gain = 0.1   # slow at first\nsteering_gain = 0.2\nintegral_limit = 0.3\n";
         let out = with_gains(text, &gains()).unwrap();
-        assert!(out.starts_with("# my robot\n[camera]\nfps = 30.0\n"), "{out}");
-        assert!(out.contains("speed_gain = 0.25   # slow at first\n"), "{out}");
+        assert!(
+            out.starts_with("# my robot\n[camera]\nfps = 30.0\n"),
+            "{out}"
+        );
+        assert!(
+            out.contains("speed_gain = 0.25   # slow at first\n"),
+            "{out}"
+        );
         assert!(out.contains("steering_gain = 0.3\n"), "{out}");
         assert!(out.contains("integral_limit = 0.3\n"), "{out}");
         assert!(out.contains("steering_kd = 0.05\n"), "{out}");
@@ -138,7 +150,9 @@ mod tests {
         let e = save_gains(&path, &gains()).unwrap_err().to_string();
         assert!(e.contains("robot.toml"), "{e}");
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "[control\n");
-        let e = save_gains(&dir.path().join("missing.toml"), &gains()).unwrap_err().to_string();
+        let e = save_gains(&dir.path().join("missing.toml"), &gains())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("missing.toml"), "{e}");
     }
 }

@@ -73,10 +73,12 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/login", get(login_page).post(login))
         .merge(protected)
-        .layer(tower_http::set_header::SetResponseHeaderLayer::if_not_present(
-            header::CACHE_CONTROL,
-            HeaderValue::from_static("no-store"),
-        ))
+        .layer(
+            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+                header::CACHE_CONTROL,
+                HeaderValue::from_static("no-store"),
+            ),
+        )
         .with_state(state)
 }
 
@@ -101,7 +103,11 @@ async fn require_token(State(s): State<AppState>, req: Request, next: Next) -> R
     if req.uri().path() == "/" {
         return Redirect::to("/login").into_response();
     }
-    let why = if given.is_some() { "wrong token" } else { "token required" };
+    let why = if given.is_some() {
+        "wrong token"
+    } else {
+        "token required"
+    };
     (StatusCode::UNAUTHORIZED, why).into_response()
 }
 
@@ -116,9 +122,11 @@ struct LoginForm {
 
 async fn login(State(s): State<AppState>, Form(f): Form<LoginForm>) -> Response {
     match s.token.as_deref() {
-        Some(expected) if !auth::same(f.token.trim(), expected) => {
-            (StatusCode::UNAUTHORIZED, Html(LOGIN.replace("<!--error-->", "<p class=\"err\">Wrong token.</p>"))).into_response()
-        }
+        Some(expected) if !auth::same(f.token.trim(), expected) => (
+            StatusCode::UNAUTHORIZED,
+            Html(LOGIN.replace("<!--error-->", "<p class=\"err\">Wrong token.</p>")),
+        )
+            .into_response(),
         Some(expected) => {
             let mut r = Redirect::to("/").into_response();
             if let Ok(v) = HeaderValue::from_str(&auth::cookie(expected)) {
@@ -219,10 +227,15 @@ impl StatusView {
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ClientMsg {
     /// Sticks, -1..=1; at 10 Hz while the page holds the controls (also the heartbeat).
-    Drive { throttle: f32, steering: f32 },
+    Drive {
+        throttle: f32,
+        steering: f32,
+    },
     Heartbeat,
     /// `manual`, `auto` or `stopped`.
-    Mode { mode: String },
+    Mode {
+        mode: String,
+    },
     /// The emergency stop (any page may press it).
     Estop,
     Gains {
@@ -232,7 +245,9 @@ pub enum ClientMsg {
         steering_bias: f32,
         steering_ki: f32,
     },
-    Record { on: bool },
+    Record {
+        on: bool,
+    },
     /// Write the daemon's gains into the config file.
     Save,
 }
@@ -324,7 +339,12 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
     tracing::info!(client = id, "web page connected");
     let mut status = s.status.clone();
     status.mark_changed();
-    if !send(&mut socket, json(&serde_json::json!({"type": "hello", "client": id}))).await {
+    if !send(
+        &mut socket,
+        json(&serde_json::json!({"type": "hello", "client": id})),
+    )
+    .await
+    {
         return;
     }
     loop {
@@ -374,11 +394,21 @@ async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
                 && !matches!(request, RemoteRequest::EmergencyStop)
             {
                 // The daemon refuses it too; say so once per message kind that needs control.
-                if !matches!(request, RemoteRequest::Drive { .. } | RemoteRequest::Heartbeat) {
+                if !matches!(
+                    request,
+                    RemoteRequest::Drive { .. } | RemoteRequest::Heartbeat
+                ) {
                     return error(format!("another page (client {h}) holds the controls"));
                 }
             }
-            if s.remote.send(RemoteMsg { client: id, request }).await.is_err() {
+            if s.remote
+                .send(RemoteMsg {
+                    client: id,
+                    request,
+                })
+                .await
+                .is_err()
+            {
                 return error("the daemon is shutting down".into());
             }
             None
@@ -389,7 +419,9 @@ async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
                 return error(format!("another page (client {h}) holds the controls"));
             }
             let Some(path) = s.config_path.clone() else {
-                return error("saving is off: the daemon was not started from a config file".into());
+                return error(
+                    "saving is off: the daemon was not started from a config file".into(),
+                );
             };
             let result = tokio::task::spawn_blocking(move || {
                 super::save::save_gains(&path, &gains).map(|()| path)
@@ -398,7 +430,9 @@ async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
             match result {
                 Ok(Ok(path)) => {
                     tracing::info!(path = %path.display(), ?gains, "web: gains saved to the config");
-                    Some(json(&serde_json::json!({"type": "saved", "path": path.display().to_string()})))
+                    Some(json(
+                        &serde_json::json!({"type": "saved", "path": path.display().to_string()}),
+                    ))
                 }
                 Ok(Err(e)) => error(e.to_string()),
                 Err(e) => error(format!("saving failed: {e}")),
@@ -413,8 +447,15 @@ mod tests {
 
     #[test]
     fn client_messages_parse_and_bad_ones_are_named() {
-        let m: ClientMsg = serde_json::from_str(r#"{"type":"drive","throttle":0.5,"steering":-0.2}"#).unwrap();
-        assert_eq!(m, ClientMsg::Drive { throttle: 0.5, steering: -0.2 });
+        let m: ClientMsg =
+            serde_json::from_str(r#"{"type":"drive","throttle":0.5,"steering":-0.2}"#).unwrap();
+        assert_eq!(
+            m,
+            ClientMsg::Drive {
+                throttle: 0.5,
+                steering: -0.2
+            }
+        );
         let g = SteeringGains::default();
         let m: ClientMsg = serde_json::from_str(r#"{"type":"mode","mode":"auto"}"#).unwrap();
         assert_eq!(m.request(&g), Ok(Some(RemoteRequest::Mode(Mode::Auto))));

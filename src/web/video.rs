@@ -39,7 +39,14 @@ pub struct VideoParams {
 pub fn encode(frame: &LiveFrame, p: &VideoParams) -> Result<Bytes, image::ImageError> {
     let mut rgb = frame.rgb.as_ref().clone();
     if let Some(kind) = p.overlay {
-        super::overlay::draw(&mut rgb, frame.width, frame.height, kind, frame.outputs, frame.wheels);
+        super::overlay::draw(
+            &mut rgb,
+            frame.width,
+            frame.height,
+            kind,
+            frame.outputs,
+            frame.wheels,
+        );
     }
     let mut out = Vec::with_capacity(rgb.len() / 8);
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, p.quality.clamp(1, 100)).encode(
@@ -144,9 +151,15 @@ mod tests {
         assert_eq!(&bytes[..2], &[0xFF, 0xD8]);
         let img = image::load_from_memory(&bytes).unwrap();
         assert_eq!((img.width(), img.height()), (32, 24));
-        let part = part(&Jpeg { seq: 9, bytes: bytes.clone() });
+        let part = part(&Jpeg {
+            seq: 9,
+            bytes: bytes.clone(),
+        });
         let head = String::from_utf8_lossy(&part[..80]).to_string();
-        assert!(head.starts_with("--jetpilotframe\r\nContent-Type: image/jpeg\r\nContent-Length: "), "{head}");
+        assert!(
+            head.starts_with("--jetpilotframe\r\nContent-Type: image/jpeg\r\nContent-Length: "),
+            "{head}"
+        );
         assert!(part.ends_with(b"\r\n"));
     }
 
@@ -154,7 +167,12 @@ mod tests {
     async fn a_slow_client_gets_only_the_newest_frame_never_a_repeat() {
         let (tx, rx) = watch::channel(None);
         let mut s = Box::pin(stream(rx));
-        let jpeg = |seq| Some(Arc::new(Jpeg { seq, bytes: Bytes::from_static(b"x") }));
+        let jpeg = |seq| {
+            Some(Arc::new(Jpeg {
+                seq,
+                bytes: Bytes::from_static(b"x"),
+            }))
+        };
         // Three frames arrive before the client reads: it gets the last one only.
         for seq in 1..=3 {
             tx.send_replace(jpeg(seq));
