@@ -263,7 +263,7 @@ async fn http(addr: SocketAddr, request: &str) -> (u16, String) {
 }
 
 fn get(path: &str, extra: &str) -> String {
-    format!("GET {path} HTTP/1.1\r\nHost: robot\r\n{extra}Connection: close\r\n\r\n")
+    format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n{extra}Connection: close\r\n\r\n")
 }
 
 /// The first stop written after `t`, and whether anything but a stop went out after it.
@@ -396,6 +396,20 @@ async fn loopback_needs_no_token_and_other_addresses_always_do() {
     assert!(rig.token.is_none());
     let (code, _) = http(rig.addr, &get("/api/status", "")).await;
     assert_eq!(code, 200);
+    // Without a token only loopback names are answered (a site whose name resolves to
+    // 127.0.0.1 gets nothing), and a page from another origin cannot open the WebSocket.
+    let rebound =
+        "GET /api/status HTTP/1.1\r\nHost: evil.example:8887\r\nConnection: close\r\n\r\n";
+    assert_eq!(http(rig.addr, rebound).await.0, 403);
+    let upgrade = |origin: &str| {
+        format!(
+            "GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nOrigin: {origin}\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n",
+            rig.addr.port()
+        )
+    };
+    assert_eq!(http(rig.addr, &upgrade("http://evil.example")).await.0, 403);
+    let own = format!("http://127.0.0.1:{}", rig.addr.port());
+    assert_eq!(http(rig.addr, &upgrade(&own)).await.0, 101);
     rig.finish().await;
     let state = tempfile::tempdir().unwrap();
     let any = WebConfig {

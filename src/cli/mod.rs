@@ -10,6 +10,7 @@ mod image;
 mod interventions;
 mod model;
 mod panel;
+mod poses;
 mod run;
 mod samples;
 mod score;
@@ -83,6 +84,9 @@ enum Command {
     /// Score a model on labelled frames (JetBot xy folders, tubs): pixel error or MSE
     /// against the mean-label baseline, a per-frame CSV and a picture.
     Score(score::ScoreArgs),
+    /// Poses for a recording without them (visual odometry on the floor, fused with the
+    /// wheel commands), written to a new tub; or, with --check, its drift against known poses.
+    Poses(poses::PosesArgs),
     /// Train policies: imitation learning on demonstrations, DDPG fine-tuning in the
     /// simulator (needs a build with `--features train`).
     #[cfg(feature = "train")]
@@ -119,6 +123,7 @@ pub fn main() -> ExitCode {
         Command::Sim(args) => sim::sim(args),
         Command::Eval(args) => sim::eval(args),
         Command::Score(args) => score::main(args),
+        Command::Poses(args) => poses::main(args),
         #[cfg(feature = "train")]
         Command::Train(cmd) => train::main(cmd),
         #[cfg(not(feature = "train"))]

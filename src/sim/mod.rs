@@ -24,6 +24,7 @@ pub mod env;
 pub mod expert;
 pub mod layout;
 pub mod lens;
+pub mod odometry;
 pub mod realtime;
 pub mod render;
 pub mod reward;

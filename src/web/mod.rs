@@ -92,19 +92,22 @@ impl WebServer {
             .map_err(|e| bind_err(e.to_string()))?;
         let addr = listener.local_addr().map_err(|e| bind_err(e.to_string()))?;
         let cancel = CancellationToken::new();
-        let (video_tx, video_rx) = watch::channel(None);
+        let video_tx = Arc::new(watch::Sender::new(None));
         let params = video::VideoParams {
             fps: cfg.video_fps,
             quality: cfg.jpeg_quality,
             overlay: cfg.overlay.then_some(output),
         };
-        drop(video_rx);
-        let video_rx = video_tx.subscribe();
-        tokio::spawn(video::encoder(links.live, video_tx, params, cancel.clone()));
+        tokio::spawn(video::encoder(
+            links.live,
+            video_tx.clone(),
+            params,
+            cancel.clone(),
+        ));
         let state = server::AppState {
             token: token.as_deref().map(Arc::from),
             status: links.status,
-            video: video_rx,
+            video: video_tx,
             remote: links.remote,
             config_path: config_path.clone().map(Arc::new),
             next_client: Arc::new(AtomicU64::new(0)),

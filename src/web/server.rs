@@ -44,7 +44,9 @@ pub struct AppState {
     /// `None`: no token asked for (loopback).
     pub token: Option<Arc<str>>,
     pub status: watch::Receiver<DaemonStatus>,
-    pub video: watch::Receiver<Option<Arc<Jpeg>>>,
+    /// The encoder's slot; each video client subscribes (the encoder works only while
+    /// someone does).
+    pub video: Arc<watch::Sender<Option<Arc<Jpeg>>>>,
     pub remote: mpsc::Sender<RemoteMsg>,
     /// The config file "save to config" writes to (`None`: saving is off).
     pub config_path: Option<Arc<PathBuf>>,
@@ -73,6 +75,7 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/login", get(login_page).post(login))
         .merge(protected)
+        .layer(middleware::from_fn_with_state(state.clone(), same_origin))
         .layer(
             tower_http::set_header::SetResponseHeaderLayer::if_not_present(
                 header::CACHE_CONTROL,
@@ -80,6 +83,49 @@ pub fn router(state: AppState) -> Router {
             ),
         )
         .with_state(state)
+}
+
+/// Refuses requests another site's page could make through the user's browser:
+/// - without a token (loopback), the `Host` must be a loopback name or address, so a web
+///   site whose name resolves to 127.0.0.1 (DNS rebinding) cannot reach the page;
+/// - a request that carries an `Origin` (browsers send one with every WebSocket upgrade
+///   and form post) must come from this page's own origin.
+async fn same_origin(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    if let Some(refusal) = cross_site(s.token.is_none(), req.headers()) {
+        return (StatusCode::FORBIDDEN, refusal).into_response();
+    }
+    next.run(req).await
+}
+
+/// Why [`same_origin`] refuses a request with these headers, if it does.
+fn cross_site(tokenless: bool, headers: &axum::http::HeaderMap) -> Option<&'static str> {
+    let header = |n| headers.get(n).and_then(|v| v.to_str().ok());
+    let host = header(header::HOST).unwrap_or("");
+    if tokenless && !loopback_host(host) {
+        return Some("this page answers only to 127.0.0.1 or localhost without a token");
+    }
+    if let Some(origin) = header(header::ORIGIN) {
+        let authority = origin
+            .strip_prefix("http://")
+            .or_else(|| origin.strip_prefix("https://"))
+            .unwrap_or("");
+        if !authority.eq_ignore_ascii_case(host) {
+            return Some("cross-origin request refused");
+        }
+    }
+    None
+}
+
+/// `localhost`, `127.x.x.x` or `[::1]`, with or without a port.
+pub fn loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(rest) => rest.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 /// The token check. A browser without it is sent to the login page; everything else gets
@@ -139,12 +185,15 @@ async fn login(State(s): State<AppState>, Form(f): Form<LoginForm>) -> Response 
 }
 
 async fn index(State(s): State<AppState>) -> Html<String> {
-    let info = serde_json::to_string(s.page.as_ref()).unwrap_or_else(|_| "{}".into());
+    // `<` escaped: a path with `</script>` in it cannot end the script early.
+    let info = serde_json::to_string(s.page.as_ref())
+        .unwrap_or_else(|_| "{}".into())
+        .replace('<', "\\u003c");
     Html(INDEX.replace("/*PAGE_INFO*/{}", &info))
 }
 
 async fn video_stream(State(s): State<AppState>) -> Response {
-    let body = Body::from_stream(video::stream(s.video.clone()));
+    let body = Body::from_stream(video::stream(s.video.subscribe()));
     Response::builder()
         .header(
             header::CONTENT_TYPE,
@@ -465,6 +514,29 @@ mod tests {
         assert!(serde_json::from_str::<ClientMsg>(r#"{"type":"drive","throttle":1}"#).is_err());
         let m: ClientMsg = serde_json::from_str(r#"{"type":"save"}"#).unwrap();
         assert_eq!(m.request(&g), Ok(None));
+    }
+
+    #[test]
+    fn loopback_hosts() {
+        for h in [
+            "127.0.0.1:8887",
+            "localhost:8887",
+            "LOCALHOST",
+            "[::1]:8887",
+            "127.0.0.2",
+            "[::1]",
+        ] {
+            assert!(loopback_host(h), "{h}");
+        }
+        for h in [
+            "evil.example:8887",
+            "192.168.1.5:8887",
+            "",
+            "localhost.evil.example",
+            "[::2]:80",
+        ] {
+            assert!(!loopback_host(h), "{h}");
+        }
     }
 
     #[test]

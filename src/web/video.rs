@@ -61,7 +61,7 @@ pub fn encode(frame: &LiveFrame, p: &VideoParams) -> Result<Bytes, image::ImageE
 /// Runs the encoder until `cancel`: frames from `live`, JPEGs into `out`.
 pub async fn encoder(
     mut live: watch::Receiver<Option<LiveFrame>>,
-    out: watch::Sender<Option<Arc<Jpeg>>>,
+    out: Arc<watch::Sender<Option<Arc<Jpeg>>>>,
     p: VideoParams,
     cancel: CancellationToken,
 ) {

@@ -1,0 +1,168 @@
+//! `jetpilot poses`: poses for a recording that has none, by visual odometry on the ground
+//! plane fused with the wheel commands; or, with `--check`, the drift of that estimate
+//! against a tub whose poses are known.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use jetpilot::config::Config;
+use jetpilot::dataset::tub::TubReader;
+use jetpilot::sim::Pose2;
+use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, check, output};
+
+#[derive(Debug, clap::Args)]
+pub struct PosesArgs {
+    /// The recording (a tub, as `jetpilot record` writes it). It is only read.
+    #[arg(long, value_name = "DIR")]
+    tub: PathBuf,
+    /// Config with the camera (`[sim.camera]`: lens, height, tilt) and the robot
+    /// (`[sim.robot]`: wheel base, motor model); default: JetBot's.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// The new tub, with `pose/x`, `pose/y`, `pose/heading` (default: `<tub>-poses`);
+    /// `poses.csv` (per frame: pose, confidence, source) and `poses.png` (the trace) go
+    /// in it too.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// The tub's own poses are the truth: estimate without them from its first pose, and
+    /// report the drift of the estimate and of the wheels alone (writes only the trace).
+    #[arg(long)]
+    check: bool,
+    /// With --check: use every N-th frame (a lower frame rate).
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "check")]
+    every: usize,
+    /// With --check: add Gaussian noise (grey levels) to every frame.
+    #[arg(long, value_name = "SIGMA", default_value_t = 0.0, requires = "check")]
+    noise: f32,
+    /// With --check: box-blur every frame (radius in pixels).
+    #[arg(long, value_name = "PX", default_value_t = 0, requires = "check")]
+    blur: usize,
+    /// With --check: where the trace goes (default: poses-check.png).
+    #[arg(long, value_name = "FILE", requires = "check")]
+    png: Option<PathBuf>,
+}
+
+pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
+    let sim = match &args.config {
+        Some(c) => Config::load(c)?.sim,
+        None => Default::default(),
+    };
+    let tub = TubReader::open(&args.tub)
+        .with_context(|| format!("reading the tub {}", args.tub.display()))?;
+    let params = OdometryParams::default();
+    if args.check {
+        return check_against_truth(&args, &tub, &sim, params);
+    }
+    if let Some(rec) = tub.records().find(|r| r.pose.is_some()) {
+        anyhow::bail!(
+            "{}: record {} already has a pose; use --check to measure the estimate against them",
+            args.tub.display(),
+            rec.index
+        );
+    }
+    let out = args.out.clone().unwrap_or_else(|| {
+        let mut name = args.tub.file_name().unwrap_or_default().to_os_string();
+        name.push("-poses");
+        args.tub.with_file_name(name)
+    });
+    if out.exists() {
+        anyhow::bail!(
+            "{} exists already: give another --out (nothing is overwritten)",
+            out.display()
+        );
+    }
+    let est = odometry::estimate(
+        &tub,
+        &sim.camera,
+        sim.robot,
+        params,
+        Pose2::default(),
+        ReadOptions::default(),
+    )?;
+    for w in &est.warnings {
+        tracing::warn!("{w}");
+    }
+    let n = output::write_tub(&tub, &est, &out, super::unix_now())?;
+    output::write_csv(&est, &out.join("poses.csv"))?;
+    output::trace_png(&est, None, &out.join("poses.png"))?;
+    let flagged = est.flagged().saturating_sub(1);
+    let length: f32 = est
+        .poses
+        .windows(2)
+        .map(|w| (w[1].pose.x - w[0].pose.x).hypot(w[1].pose.y - w[0].pose.y))
+        .sum();
+    println!(
+        "{n} records with poses -> {} ({length:.2} m travelled; {flagged} of {} frames from the wheels alone, see poses.csv; trace: poses.png)",
+        out.display(),
+        est.poses.len().saturating_sub(1)
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn check_against_truth(
+    args: &PosesArgs,
+    tub: &TubReader,
+    sim: &jetpilot::sim::setup::SimConfig,
+    params: OdometryParams,
+) -> anyhow::Result<ExitCode> {
+    let truth: HashMap<u64, Pose2> = tub
+        .records()
+        .filter_map(|r| r.pose.map(|(x, y, h)| (r.index, Pose2::new(x, y, h))))
+        .collect();
+    let first = tub
+        .records()
+        .next()
+        .and_then(|r| truth.get(&r.index))
+        .copied();
+    let Some(start) = first else {
+        anyhow::bail!(
+            "{}: --check needs a tub whose records carry poses (the simulator's: jetpilot sim --record)",
+            args.tub.display()
+        );
+    };
+    let opts = ReadOptions {
+        every: args.every,
+        noise: args.noise,
+        blur: args.blur,
+    };
+    let est = odometry::estimate(tub, &sim.camera, sim.robot, params, start, opts)?;
+    let mut wheels_only = params;
+    wheels_only.fusion.min_texture = f32::INFINITY;
+    let base = odometry::estimate(
+        tub,
+        &sim.camera,
+        sim.robot,
+        wheels_only,
+        start,
+        ReadOptions {
+            every: args.every,
+            ..ReadOptions::default()
+        },
+    )?;
+    let d = check::drift(&est.poses, &truth);
+    let b = check::drift(&base.poses, &truth);
+    let png = args
+        .png
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("poses-check.png"));
+    let truth_path: Vec<Pose2> = est
+        .poses
+        .iter()
+        .filter_map(|p| truth.get(&p.index).copied())
+        .collect();
+    output::trace_png(&est, Some(&truth_path), &png)?;
+    println!("visual + wheels: {d}");
+    println!(
+        "                 {} of {} frames from the wheels alone",
+        est.flagged().saturating_sub(1),
+        est.poses.len().saturating_sub(1)
+    );
+    println!("wheels alone:    {b}");
+    println!(
+        "trace: {} (grey: truth, green: estimate, red: frames from the wheels)",
+        png.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,206 @@
+//! Writing the estimate: a new tub with the poses (the original is only read), the
+//! per-frame CSV, and a top-down trace PNG.
+//!
+//! The new tub is written into `<out>.partial` and renamed to `<out>` when complete, so an
+//! interrupted run leaves the original tub as it was and no half-written tub under the
+//! name asked for.
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use super::super::{Pose2, SimError};
+use super::{Estimate, FramePose};
+use crate::dataset::tub::{TubInputs, TubReader, TubWriter};
+
+fn file_err(path: &Path, reason: impl std::fmt::Display) -> SimError {
+    SimError::File {
+        path: path.display().to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+/// Where a partial output is written before it is renamed.
+pub fn partial_dir(out: &Path) -> PathBuf {
+    let mut name = out.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    out.with_file_name(name)
+}
+
+/// Writes every live record of `tub` that has a pose in `estimate`, with that pose, to a
+/// new tub at `out` (which must not exist). Returns the records written.
+pub fn write_tub(
+    tub: &TubReader,
+    estimate: &Estimate,
+    out: &Path,
+    created_at: f64,
+) -> Result<usize, SimError> {
+    if out.exists() {
+        return Err(file_err(
+            out,
+            "exists already: give another --out (nothing is overwritten)",
+        ));
+    }
+    let partial = partial_dir(out);
+    if partial.exists() {
+        // A previous interrupted run's output: never read as a tub, safe to replace.
+        std::fs::remove_dir_all(&partial).map_err(|e| file_err(&partial, e))?;
+    }
+    let poses: HashMap<u64, &FramePose> = estimate.poses.iter().map(|p| (p.index, p)).collect();
+    let mut inputs = TubInputs {
+        pose: true,
+        ..TubInputs::default()
+    };
+    for r in tub.records() {
+        inputs.pilot |= r.pilot_angle.is_some();
+        inputs.wheels |= r.wheels.is_some();
+        inputs.reward |= r.reward.is_some();
+        inputs.target |= r.target.is_some();
+    }
+    let mut w =
+        TubWriter::create(&partial, &inputs, created_at).map_err(|e| file_err(&partial, e))?;
+    let mut n = 0;
+    for rec in tub.records() {
+        let Some(p) = poses.get(&rec.index) else {
+            continue;
+        };
+        let path = tub.image_path(rec);
+        let Ok(jpeg) = std::fs::read(&path) else {
+            continue; // reported by the estimate already
+        };
+        let mut copy = rec.clone();
+        copy.pose = Some((p.pose.x, p.pose.y, p.pose.heading));
+        w.append(&copy, &jpeg).map_err(|e| file_err(&partial, e))?;
+        n += 1;
+    }
+    w.flush_and_sync().map_err(|e| file_err(&partial, e))?;
+    drop(w);
+    std::fs::rename(&partial, out).map_err(|e| file_err(out, e))?;
+    Ok(n)
+}
+
+/// `index,time_s,x,y,heading,confidence,source`, one line a frame.
+pub fn write_csv(estimate: &Estimate, path: &Path) -> Result<(), SimError> {
+    let mut text = String::from("index,time_s,x,y,heading,confidence,source\n");
+    for p in &estimate.poses {
+        text.push_str(&format!(
+            "{},{:.3},{:.5},{:.5},{:.5},{:.3},{}\n",
+            p.index,
+            p.time_s,
+            p.pose.x,
+            p.pose.y,
+            p.pose.heading,
+            p.confidence,
+            p.source.as_str()
+        ));
+    }
+    let mut f = std::fs::File::create(path).map_err(|e| file_err(path, e))?;
+    f.write_all(text.as_bytes()).map_err(|e| file_err(path, e))
+}
+
+/// A top-down trace, north up: the estimate in green (red where a frame fell back to the
+/// wheels), the truth in grey when given, start marked by a blue dot.
+pub fn trace_png(
+    estimate: &Estimate,
+    truth: Option<&[Pose2]>,
+    path: &Path,
+) -> Result<(), SimError> {
+    const SIZE: u32 = 640;
+    const MARGIN: f32 = 30.0;
+    let mut pts: Vec<(f32, f32)> = estimate
+        .poses
+        .iter()
+        .map(|p| (p.pose.x, p.pose.y))
+        .collect();
+    if let Some(t) = truth {
+        pts.extend(t.iter().map(|p| (p.x, p.y)));
+    }
+    let (mut x0, mut y0, mut x1, mut y1) = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+    for &(x, y) in pts.iter().filter(|(x, y)| x.is_finite() && y.is_finite()) {
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    if x0 > x1 {
+        (x0, y0, x1, y1) = (0.0, 0.0, 1.0, 1.0);
+    }
+    let span = (x1 - x0).max(y1 - y0).max(0.1);
+    let scale = (SIZE as f32 - 2.0 * MARGIN) / span;
+    let to_px = |x: f32, y: f32| {
+        (
+            MARGIN + (x - x0) * scale,
+            SIZE as f32 - MARGIN - (y - y0) * scale,
+        )
+    };
+    let mut img = image::RgbImage::from_pixel(SIZE, SIZE, image::Rgb([250, 250, 250]));
+    // A 10 cm grid.
+    let step = 0.1 * scale;
+    if step >= 4.0 {
+        let mut gx = MARGIN;
+        while gx < SIZE as f32 {
+            for y in 0..SIZE {
+                img.put_pixel(gx as u32, y, image::Rgb([228, 228, 228]));
+                img.put_pixel(
+                    y,
+                    (SIZE as f32 - gx) as u32 % SIZE,
+                    image::Rgb([228, 228, 228]),
+                );
+            }
+            gx += step;
+        }
+    }
+    let mut line = |a: (f32, f32), b: (f32, f32), c: [u8; 3], width: i32| {
+        let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as i32).max(1);
+        for i in 0..=n {
+            let t = i as f32 / n as f32;
+            let (x, y) = (a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t);
+            for dy in -width / 2..=width / 2 {
+                for dx in -width / 2..=width / 2 {
+                    let (px, py) = (x as i32 + dx, y as i32 + dy);
+                    if (0..SIZE as i32).contains(&px) && (0..SIZE as i32).contains(&py) {
+                        img.put_pixel(px as u32, py as u32, image::Rgb(c));
+                    }
+                }
+            }
+        }
+    };
+    if let Some(t) = truth {
+        for w in t.windows(2) {
+            line(
+                to_px(w[0].x, w[0].y),
+                to_px(w[1].x, w[1].y),
+                [150, 150, 150],
+                3,
+            );
+        }
+    }
+    for w in estimate.poses.windows(2) {
+        let colour = if w[1].source == super::fuse::Source::Fused {
+            [20, 160, 60]
+        } else {
+            [220, 40, 40]
+        };
+        line(
+            to_px(w[0].pose.x, w[0].pose.y),
+            to_px(w[1].pose.x, w[1].pose.y),
+            colour,
+            1,
+        );
+    }
+    if let Some(p) = estimate.poses.first() {
+        let c = to_px(p.pose.x, p.pose.y);
+        line((c.0 - 4.0, c.1), (c.0 + 4.0, c.1), [40, 80, 220], 7);
+    }
+    img.save(path).map_err(|e| file_err(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_partial_folder_sits_beside_the_output() {
+        assert_eq!(
+            partial_dir(Path::new("/d/lap-poses")),
+            PathBuf::from("/d/lap-poses.partial")
+        );
+    }
+}

@@ -1,0 +1,240 @@
+//! `jetpilot poses` on a recording without poses: a simulated drive recorded as a tub, its
+//! poses stripped, estimated back; the original tub is never changed (also when the run
+//! is killed); missing images and a torn catalog line are named.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Duration;
+
+use jetpilot::dataset::tub::{TubInputs, TubReader, TubWriter};
+
+fn jetpilot(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(args)
+        .output()
+        .expect("run jetpilot")
+}
+
+fn repo(p: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(p)
+        .display()
+        .to_string()
+}
+
+/// A simulated drive of `seconds` along the mat (poses known) in `dir/sim`.
+fn sim_tub(dir: &Path, seconds: f32) -> PathBuf {
+    let out = dir.join("sim");
+    let o = jetpilot(&[
+        "-q",
+        "sim",
+        "--config",
+        &repo("config/sim.toml"),
+        "--expert",
+        "--seconds",
+        &seconds.to_string(),
+        "--record",
+        &out.display().to_string(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+/// A copy of `tub` without its poses (as `jetpilot record` would have written it).
+fn without_poses(tub: &Path, out: &Path) {
+    let r = TubReader::open(tub).unwrap();
+    let inputs = TubInputs {
+        wheels: true,
+        ..TubInputs::default()
+    };
+    let mut w = TubWriter::create(out, &inputs, 1.7e9).unwrap();
+    for rec in r.records() {
+        let mut copy = rec.clone();
+        copy.pose = None;
+        copy.reward = None;
+        copy.target = None;
+        w.append(&copy, &std::fs::read(r.image_path(rec)).unwrap())
+            .unwrap();
+    }
+    w.flush_and_sync().unwrap();
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(p.clone(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = sim_tub(dir.path(), 4.0);
+    let bare = dir.path().join("lap");
+    without_poses(&sim, &bare);
+    let before = snapshot(&bare);
+
+    let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(stdout.contains("records with poses"), "{stdout}");
+    assert_eq!(snapshot(&bare), before, "the original tub changed");
+
+    let out = dir.path().join("lap-poses");
+    assert!(out.join("poses.csv").exists() && out.join("poses.png").exists());
+    let est = TubReader::open(&out).unwrap();
+    let truth = TubReader::open(&sim).unwrap();
+    assert_eq!(est.len(), truth.len());
+    // The first pose is the origin; the truth starts elsewhere on the mat: compare the
+    // path relative to each one's start.
+    let rel = |r: &TubReader| -> Vec<(f32, f32, f32)> {
+        let recs: Vec<_> = r.records().map(|x| x.pose.unwrap()).collect();
+        let (x0, y0, h0) = recs[0];
+        let (s, c) = h0.sin_cos();
+        recs.iter()
+            .map(|&(x, y, h)| {
+                (
+                    c * (x - x0) + s * (y - y0),
+                    -s * (x - x0) + c * (y - y0),
+                    h - h0,
+                )
+            })
+            .collect()
+    };
+    let (e, t) = (rel(&est), rel(&truth));
+    let travelled: f32 = t
+        .windows(2)
+        .map(|w| (w[1].0 - w[0].0).hypot(w[1].1 - w[0].1))
+        .sum();
+    assert!(travelled > 0.5, "{travelled}");
+    let (el, tl) = (e[e.len() - 1], t[t.len() - 1]);
+    let drift = (el.0 - tl.0).hypot(el.1 - tl.1);
+    assert!(
+        drift < 0.05 * travelled,
+        "drift {drift:.3} m over {travelled:.2} m"
+    );
+    assert!(
+        (el.2 - tl.2).abs() < 5f32.to_radians(),
+        "heading {} vs {}",
+        el.2,
+        tl.2
+    );
+    // Every record kept its other keys.
+    let first = est.records().next().unwrap();
+    assert!(first.wheels.is_some());
+
+    // Nothing is overwritten, and a tub that has poses is not re-estimated.
+    let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("exists already"));
+    let o = jetpilot(&[
+        "poses",
+        "--tub",
+        &sim.display().to_string(),
+        "--out",
+        &dir.path().join("x").display().to_string(),
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("already has a pose"));
+
+    // --check against the truth prints the drift of both estimates.
+    let png = dir.path().join("check.png");
+    let o = jetpilot(&[
+        "poses",
+        "--tub",
+        &sim.display().to_string(),
+        "--check",
+        "--png",
+        &png.display().to_string(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("visual + wheels:") && stdout.contains("wheels alone:"),
+        "{stdout}"
+    );
+    assert!(png.exists());
+}
+
+#[test]
+fn a_killed_run_leaves_the_tub_readable_and_unchanged() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = sim_tub(dir.path(), 6.0);
+    let bare = dir.path().join("lap");
+    without_poses(&sim, &bare);
+    let before = snapshot(&bare);
+    for wait_ms in [300, 1500, 4000] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+            .args(["poses", "--tub", &bare.display().to_string()])
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(wait_ms));
+        let _ = child.kill();
+        let _ = child.wait();
+        assert_eq!(
+            snapshot(&bare),
+            before,
+            "killed after {wait_ms} ms: the tub changed"
+        );
+        let r = TubReader::open(&bare).unwrap();
+        assert_eq!(r.len(), 180);
+        assert!(r.warnings().is_empty(), "{:?}", r.warnings());
+        let out = dir.path().join("lap-poses");
+        if out.exists() {
+            // It finished before the kill: a complete tub, then.
+            assert_eq!(TubReader::open(&out).unwrap().len(), 180);
+            std::fs::remove_dir_all(&out).unwrap();
+        }
+    }
+    // A later run completes (replacing what a killed one left in lap-poses.partial).
+    let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!dir.path().join("lap-poses.partial").exists());
+}
+
+#[test]
+fn missing_images_and_a_torn_catalog_line_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = sim_tub(dir.path(), 2.0);
+    let bare = dir.path().join("lap");
+    without_poses(&sim, &bare);
+    std::fs::remove_file(bare.join("images/10_cam_image_array_.jpg")).unwrap();
+    let catalog = bare.join("catalog_0.catalog");
+    let mut text = std::fs::read(&catalog).unwrap();
+    text.extend_from_slice(b"{\"_index\": 60, \"_session_id\": \"x\", \"_timest");
+    std::fs::write(&catalog, text).unwrap();
+    let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("record 10") && stderr.contains("10_cam_image_array_.jpg"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("torn last line"), "{stderr}");
+    // The record without an image is left out (the tub reader names it); the others are
+    // there, the next one matched against the one before the gap.
+    let est = TubReader::open(&dir.path().join("lap-poses")).unwrap();
+    assert_eq!(est.len(), 59);
+    let csv = std::fs::read_to_string(dir.path().join("lap-poses/poses.csv")).unwrap();
+    assert!(!csv.lines().any(|l| l.starts_with("10,")), "{csv}");
+    assert!(
+        csv.lines()
+            .any(|l| l.starts_with("11,") && l.ends_with(",fused")),
+        "{csv}"
+    );
+}
