@@ -87,6 +87,12 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     let n = output::write_tub(&tub, &est, &out, super::unix_now())?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
+    if let Some(sc) = est.scales {
+        println!(
+            "wheel model corrected from the frames: speed x{:.3} ({} frames), turn x{:.3} ({} frames)",
+            sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
+        );
+    }
     let flagged = est.flagged().saturating_sub(1);
     let length: f32 = est
         .poses
@@ -130,6 +136,7 @@ fn check_against_truth(
     let est = odometry::estimate(tub, &sim.camera, sim.robot, params, start, opts)?;
     let mut wheels_only = params;
     wheels_only.fusion.min_texture = f32::INFINITY;
+    wheels_only.calibrate = false;
     let base = odometry::estimate(
         tub,
         &sim.camera,
@@ -153,6 +160,12 @@ fn check_against_truth(
         .filter_map(|p| truth.get(&p.index).copied())
         .collect();
     output::trace_png(&est, Some(&truth_path), &png)?;
+    if let Some(sc) = est.scales {
+        println!(
+            "wheel model:     speed x{:.3} ({} frames), turn x{:.3} ({} frames), calibrated from the frames",
+            sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
+        );
+    }
     println!("visual + wheels: {d}");
     println!(
         "                 {} of {} frames from the wheels alone",

@@ -15,6 +15,7 @@
 //! simulator's).
 
 pub mod birdseye;
+pub mod calibrate;
 pub mod check;
 pub mod fuse;
 pub mod output;
@@ -40,6 +41,9 @@ pub struct OdometryParams {
     /// curves' unobservable direction (a lap: 35 % drift with three levels, 4-5 % with one).
     pub levels: usize,
     pub fusion: FusionParams,
+    /// Calibrate the wheel model's speed and turn scales from the frames first
+    /// ([`calibrate`]), then estimate with the corrected model.
+    pub calibrate: bool,
 }
 
 impl Default for OdometryParams {
@@ -48,6 +52,7 @@ impl Default for OdometryParams {
             grid: ViewGrid::default(),
             levels: 1,
             fusion: FusionParams::default(),
+            calibrate: true,
         }
     }
 }
@@ -86,6 +91,8 @@ pub struct Odometer {
     /// The prior's motion since the last frame.
     pending: Motion,
     previous: Option<Vec<View>>,
+    /// Calibration pass: registrations without the prior's pull, with their priors.
+    samples: Option<Vec<calibrate::Sample>>,
 }
 
 /// `a` then `b` (`b` in the frame at the end of `a`).
@@ -112,7 +119,26 @@ impl Odometer {
             pose: start,
             pending: Motion::default(),
             previous: None,
+            samples: None,
         }
+    }
+
+    /// Applies calibrated wheel-model scales (from the start).
+    pub fn with_scales(mut self, scales: &calibrate::Scales) -> Self {
+        self.wheels = self.wheels.with_scales(scales.speed, scales.turn);
+        self
+    }
+
+    /// A calibration pass: frames are registered without the prior's pull and kept for
+    /// [`calibrate::fit`] ([`Odometer::samples`]).
+    pub fn calibrating(mut self) -> Self {
+        self.samples = Some(Vec::new());
+        self
+    }
+
+    /// The calibration pass's samples.
+    pub fn samples(&self) -> &[calibrate::Sample] {
+        self.samples.as_deref().unwrap_or(&[])
     }
 
     pub fn pose(&self) -> Pose2 {
@@ -133,14 +159,18 @@ impl Odometer {
         let texture = view.as_ref().map_or(0.0, |v| v.stats().1);
         let pyr = view.map(|v| register::pyramid(&v, self.params.levels));
         let reg = match (&self.previous, &pyr) {
-            (Some(a), Some(b)) => Some(register(
-                a,
-                b,
-                prior,
-                Some(fuse::prior_information(&prior, &self.params.fusion)),
-            )),
+            (Some(a), Some(b)) => {
+                let pull = self.samples.is_none().then(|| {
+                    fuse::prior_information(&prior, &self.params.fusion)
+                        * f64::from(self.params.fusion.prior_weight)
+                });
+                Some(register(a, b, prior, pull))
+            }
             _ => None,
         };
+        if let (Some(samples), Some(r)) = (self.samples.as_mut(), reg) {
+            samples.push(calibrate::Sample { prior, vision: r });
+        }
         let fused = fuse::fuse(prior, reg.as_ref(), texture, &self.params.fusion);
         self.pose = compose(&self.pose, &fused.motion);
         self.previous = pyr;
@@ -170,6 +200,8 @@ pub struct ReadOptions {
 #[derive(Debug, Clone)]
 pub struct Estimate {
     pub poses: Vec<FramePose>,
+    /// The wheel model's corrections (when calibrated).
+    pub scales: Option<calibrate::Scales>,
     /// Records whose image could not be read (each named), and the tub's own warnings.
     pub warnings: Vec<String>,
 }
@@ -196,19 +228,46 @@ pub fn estimate(
     opts: ReadOptions,
 ) -> Result<Estimate, SimError> {
     let mut warnings: Vec<String> = tub.warnings().to_vec();
-    let every = opts.every.max(1);
     let records: Vec<&TubRecord> = tub
         .records()
         .filter(|r| !tub.deleted_indexes().contains(&r.index))
         .collect();
-    let Some(first) = records.first() else {
+    if records.is_empty() {
         return Err(SimError::File {
             path: tub.dir().display().to_string(),
             reason: "the tub has no records".into(),
         });
     };
-    let t0 = first.timestamp_ms;
+    let scales = if params.calibrate {
+        let mut odo = Odometer::new(camera, robot, params, start).calibrating();
+        pass(tub, &records, camera, &opts, &mut odo, &mut Vec::new())?;
+        Some(calibrate::fit(odo.samples()))
+    } else {
+        None
+    };
     let mut odo = Odometer::new(camera, robot, params, start);
+    if let Some(sc) = &scales {
+        odo = odo.with_scales(sc);
+    }
+    let poses = pass(tub, &records, camera, &opts, &mut odo, &mut warnings)?;
+    Ok(Estimate {
+        poses,
+        scales,
+        warnings,
+    })
+}
+
+/// One pass of `odo` over `records`.
+fn pass(
+    tub: &TubReader,
+    records: &[&TubRecord],
+    camera: &CameraModel,
+    opts: &ReadOptions,
+    odo: &mut Odometer,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<FramePose>, SimError> {
+    let every = opts.every.max(1);
+    let t0 = records.first().map_or(0, |r| r.timestamp_ms);
     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
     let mut poses = Vec::with_capacity(records.len() / every + 1);
     for (i, rec) in records.iter().enumerate() {
@@ -233,7 +292,7 @@ pub fn estimate(
                         ),
                     });
                 }
-                degrade(&mut rgb, w, h, &opts, &mut rng);
+                degrade(&mut rgb, w, h, opts, &mut rng);
                 Some((rgb, w, h))
             }
             Err(e) => {
@@ -254,7 +313,7 @@ pub fn estimate(
             source,
         });
     }
-    Ok(Estimate { poses, warnings })
+    Ok(poses)
 }
 
 /// Adds noise and blur to a frame (the robustness study).

@@ -66,6 +66,9 @@ pub struct Registration {
 /// Neighbouring cells are sampled from overlapping pixels: their residuals are not
 /// independent, so the information is divided by this.
 const CORRELATED_CELLS: f64 = 16.0;
+/// The residuals' variance is taken as at least this (normalised views: a match is never
+/// trusted as better than a correlation of about 0.95).
+const MIN_VARIANCE: f64 = 0.1;
 /// Huber's threshold on a residual (units of the views' standard deviation).
 const HUBER: f32 = 1.0;
 /// Largest motion a registration may report between two frames.
@@ -100,7 +103,7 @@ pub fn register(
             if s.cells < 16 {
                 break;
             }
-            var = (s.sq / s.cells as f64).max(2e-2);
+            var = (s.sq / s.cells as f64).max(MIN_VARIANCE);
             let w = 1.0 / (var * CORRELATED_CELLS);
             // Image term plus prior term; Levenberg-Marquardt's small damping keeps a flat
             // direction from exploding when there is no prior.
@@ -123,7 +126,7 @@ pub fn register(
     let converged = within && fine.cells * 4 >= seen && fine.cells >= 16 && last.cells >= 16;
     let _ = var;
     let var = if fine.cells > 0 {
-        (fine.sq / fine.cells as f64).max(2e-2)
+        (fine.sq / fine.cells as f64).max(MIN_VARIANCE)
     } else {
         1.0
     };
@@ -357,10 +360,11 @@ mod tests {
         let reg = register(&pyramid(&v, 3), &pyramid(&v, 3), Motion::default(), None);
         let info = reg.information;
         assert!(info[(0, 0)] < 1e-6 * info[(1, 1)], "{info:?}");
-        // The robot moved 1 cm forward along the stripes; the wheels say 8 mm (+- 4 mm).
-        // Forward comes from the wheels, left and yaw from the floor (which says 0).
+        // The wheels say 8 mm forward, 2 mm left and 0.01 rad (+- 1 cm, 0.03 rad); the floor
+        // says no motion across the stripes. Forward comes from the wheels, left and yaw
+        // from the floor.
         let prior = Motion::new(0.008, 0.002, 0.01);
-        let ip = Matrix3::from_diagonal(&Vector3::new(1.0 / 16e-6, 1.0 / 16e-6, 1.0 / 1e-4));
+        let ip = Matrix3::from_diagonal(&Vector3::new(1e4, 1e4, 1.0 / 9e-4));
         let reg = register(&pyramid(&v, 3), &pyramid(&v, 3), prior, Some(ip));
         assert!(
             (reg.motion.forward - 0.008).abs() < 1e-4,

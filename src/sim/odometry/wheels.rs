@@ -14,6 +14,8 @@ pub struct WheelOdometry {
     params: RobotParams,
     v_left: f32,
     v_right: f32,
+    /// Corrections found by calibration: the speed and the turn rate are scaled by these.
+    scales: (f32, f32),
 }
 
 impl WheelOdometry {
@@ -23,7 +25,15 @@ impl WheelOdometry {
             params,
             v_left: 0.0,
             v_right: 0.0,
+            scales: (1.0, 1.0),
         }
+    }
+
+    /// Scales the predicted speed by `speed` and the turn rate by `turn` (the wheel model's
+    /// corrections, from [`super::calibrate`]).
+    pub fn with_scales(mut self, speed: f32, turn: f32) -> Self {
+        self.scales = (speed, turn);
+        self
     }
 
     /// The motion while `(left, right)` duty (-1..1) is held for `dt` seconds, in the frame
@@ -54,8 +64,8 @@ impl WheelOdometry {
             let (vl, vr) = (mean_of(self.v_left, tl), mean_of(self.v_right, tr));
             self.v_left += (tl - self.v_left) * k;
             self.v_right += (tr - self.v_right) * k;
-            let v = f64::from((vl + vr) / 2.0);
-            let w = f64::from((vr - vl) / self.params.wheel_base_m);
+            let v = f64::from((vl + vr) / 2.0 * self.scales.0);
+            let w = f64::from((vr - vl) / self.params.wheel_base_m * self.scales.1);
             let h64 = f64::from(h);
             // Midpoint heading for the step.
             let mid = yaw + w * h64 / 2.0;
