@@ -50,7 +50,7 @@ pub fn fit(samples: &[Sample]) -> Scales {
         for s in samples.iter().filter(|s| s.vision.converged) {
             let p = pick(&s.prior);
             let sd = marginal_sd(&s.vision, i);
-            if p.abs() < min_prior || !(sd <= sd_max) {
+            if p.abs() < min_prior || sd.is_nan() || sd > sd_max {
                 continue;
             }
             let w = 1.0 / (sd * sd);
