@@ -53,10 +53,12 @@ pub struct TeleopParts {
 }
 
 /// Makes the recorder on demand; the error names the tub.
-pub type OpenRecorder = Box<dyn FnOnce() -> Result<Recorder, String> + Send>;
+pub type OpenRecorder = Box<dyn FnMut() -> Result<Recorder, String> + Send>;
 
 pub struct Teleop {
     pad: GamepadState,
+    /// When the pad last did something (a button press or a stick past the dead zone).
+    pad_active_at: Option<Duration>,
     remote: Option<RemoteControl>,
     modes: Modes,
     autopilot_available: bool,
@@ -76,6 +78,7 @@ impl Teleop {
         Self {
             remote: parts.remote,
             pad: parts.pad,
+            pad_active_at: None,
             modes: parts.modes,
             autopilot_available: parts.autopilot_available,
             log: parts.log,
@@ -120,13 +123,34 @@ impl Teleop {
         self.remote.as_ref().and_then(|r| r.holder())
     }
 
-    /// The physical gamepad sent an event within [`PAD_IN_USE`] and is connected.
+    /// The physical gamepad is connected and in use: a stick is out of its dead zone, or a
+    /// button was pressed or a stick moved within [`PAD_IN_USE`] (jitter inside the dead
+    /// zone and releases do not count).
     fn pad_in_use(&self, now: Duration) -> bool {
         self.pad.is_connected()
-            && self
-                .pad
-                .last_event()
-                .is_some_and(|t| now.saturating_sub(t) < PAD_IN_USE)
+            && (self.pad.deflection() > 0.0
+                || self
+                    .pad_active_at
+                    .is_some_and(|t| now.saturating_sub(t) < PAD_IN_USE))
+    }
+
+    /// The dead-man check of the page holding the controls (before anything is written).
+    fn check_remote(&mut self, now: Duration) {
+        if let Some(o) = self.remote.as_mut().and_then(|r| r.check(now)) {
+            self.remote_outcome(o, now);
+        }
+    }
+
+    /// What goes out after an event: in Auto nothing (the autopilot's next command
+    /// drives), except a stop when Auto was just entered (nothing stale stays on the
+    /// motors until the first autopilot command); otherwise the tick's output.
+    fn output_after(&mut self, was: Mode, now: Duration) -> Option<Drive> {
+        if self.modes.mode() == Mode::Auto {
+            self.after(now);
+            (was != Mode::Auto).then_some(Drive::Stop)
+        } else {
+            Some(self.tick(now, None))
+        }
     }
 
     /// The pad's snapshot, or the web page's sticks while it holds the controls and the
@@ -151,27 +175,26 @@ impl Teleop {
     /// A web page's message at `now`; returns what goes to the motors now, if anything
     /// (nothing while the autopilot keeps driving).
     pub fn on_remote(&mut self, msg: &RemoteMsg, now: Duration) -> Option<Drive> {
+        let was = self.modes.mode();
+        // The holder's silence is judged before anything else: a stream of other
+        // messages must not keep a silent holder's sticks on the motors.
+        self.check_remote(now);
         let outcome = self.remote.as_mut()?.on_message(msg, now);
+        let changed = matches!(outcome, Outcome::Accepted(_) | Outcome::Lost { .. });
         self.remote_outcome(outcome, now);
-        self.poll_after_remote(now)
+        if !changed && self.modes.mode() == was {
+            self.after(now);
+            return None; // a refused or ignored message writes nothing
+        }
+        self.output_after(was, now)
     }
 
     /// The control tick without an autopilot command: the web page's dead-man check, then
     /// (outside Auto) what goes to the motors.
     pub fn poll(&mut self, now: Duration) -> Option<Drive> {
-        if let Some(o) = self.remote.as_mut().and_then(|r| r.check(now)) {
-            self.remote_outcome(o, now);
-        }
-        self.poll_after_remote(now)
-    }
-
-    fn poll_after_remote(&mut self, now: Duration) -> Option<Drive> {
-        if self.modes.mode() == Mode::Auto {
-            self.after(now);
-            None
-        } else {
-            Some(self.tick(now, None))
-        }
+        let was = self.modes.mode();
+        self.check_remote(now);
+        self.output_after(was, now)
     }
 
     fn remote_outcome(&mut self, outcome: Outcome, now: Duration) {
@@ -179,6 +202,9 @@ impl Teleop {
             Outcome::Accepted(req) => match req {
                 RemoteRequest::Drive { .. } | RemoteRequest::Heartbeat | RemoteRequest::Closed => {}
                 RemoteRequest::EmergencyStop => self.action(Action::EmergencyStop, now),
+                RemoteRequest::Mode(to) if to != Mode::Stopped && self.pad_in_use(now) => {
+                    tracing::info!(mode = %to, "web: the gamepad is in use; its driver decides the mode");
+                }
                 RemoteRequest::Mode(to) => match (self.modes.mode(), to) {
                     (Mode::Manual, Mode::Auto) | (Mode::Auto, Mode::Manual) => {
                         self.action(Action::ToggleAutopilot, now)
@@ -222,8 +248,9 @@ impl Teleop {
     /// True when there is a recorder, opening it now if it is made on demand.
     fn ensure_recorder(&mut self) -> bool {
         if self.recorder.is_none()
-            && let Some(open) = self.open_recorder.take()
+            && let Some(open) = self.open_recorder.as_mut()
         {
+            // Kept after a failure: the next press tries again (a full card emptied, say).
             match open() {
                 Ok(r) => self.recorder = Some(r),
                 Err(e) => tracing::error!(error = %e, "cannot start recording"),
@@ -244,7 +271,11 @@ impl Teleop {
     /// A gamepad event; returns what goes to the motors now, if anything (in Auto the
     /// autopilot's next command drives; a stick takeover is seen on that tick).
     pub fn on_event(&mut self, event: &InputEvent, now: Duration) -> Option<Drive> {
+        let was = self.modes.mode();
         let action = self.modes.handle_event(&mut self.pad, event, now);
+        if action.is_some() || self.pad.deflection() > 0.0 {
+            self.pad_active_at = Some(now);
+        }
         if self.modes.mode() == Mode::Auto && !self.autopilot_available {
             tracing::warn!("no model loaded: the autopilot is not available");
             self.modes.on_action(Action::ToggleAutopilot, now);
@@ -262,11 +293,12 @@ impl Teleop {
             }
             _ => {}
         }
-        self.poll_after_remote(now)
+        self.output_after(was, now)
     }
 
     /// The control tick (Manual commands, heartbeat, gamepad loss), or an autopilot command.
     pub fn tick(&mut self, now: Duration, autopilot: Option<WheelCommand>) -> Drive {
+        self.check_remote(now);
         let snap = self.snapshot(now);
         let d = self.modes.tick_snapshot(now, snap, autopilot);
         self.after(now);
@@ -484,7 +516,17 @@ mod tests {
             panic!("{d:?}")
         };
         assert!(w.left < 0.0, "the pad's command, not the page's: {w:?}");
-        // 0.5 s after the pad's last event, the page's sticks drive again.
+        // Let go (centred) at 200 ms; jitter inside the dead zone later is not use.
+        let at = |value| InputEvent::Axis {
+            code: AbsoluteAxisCode::ABS_Y,
+            value,
+            min: -32768,
+            max: 32767,
+        };
+        t.on_event(&at(0), ms(200));
+        t.on_remote(&web(1, drive(1.0, 0.4)), ms(450));
+        t.on_event(&at(300), ms(640));
+        // 0.5 s after the pad last did something, the page's sticks drive again.
         t.on_remote(&web(1, drive(1.0, 0.4)), ms(600));
         assert_eq!(
             t.poll(ms(660)),
@@ -495,7 +537,11 @@ mod tests {
     #[test]
     fn losing_the_page_stops_unless_the_gamepad_is_in_use() {
         let (mut t, _) = teleop();
-        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Auto)), ms(0));
+        assert_eq!(
+            t.on_remote(&web(1, RemoteRequest::Mode(Mode::Auto)), ms(0)),
+            Some(Drive::Stop),
+            "entering Auto clears the last manual command"
+        );
         assert_eq!(t.mode(), Mode::Auto);
         assert_eq!(t.poll(ms(400)), None, "Auto: the autopilot drives");
         assert_eq!(t.poll(ms(500)), Some(Drive::Stop), "silent for 0.5 s");
@@ -506,24 +552,31 @@ mod tests {
         assert_eq!(t.mode(), Mode::Stopped);
         t.on_remote(&web(2, RemoteRequest::Mode(Mode::Manual)), ms(700));
         assert_eq!(t.mode(), Mode::Manual);
-        // With the gamepad in use, the page closing changes nothing.
+        // With the gamepad in use (a stick pushed), the page can neither switch to Auto
+        // nor, by closing, stop the car.
         let ev = InputEvent::Axis {
             code: AbsoluteAxisCode::ABS_Y,
-            value: 0,
+            value: -16384,
             min: -32768,
             max: 32767,
         };
         t.on_event(&ev, ms(750));
+        t.on_remote(&web(2, RemoteRequest::Mode(Mode::Auto)), ms(760));
+        assert_eq!(t.mode(), Mode::Manual);
         t.on_remote(&web(2, RemoteRequest::Closed), ms(800));
         assert_eq!(t.mode(), Mode::Manual);
         assert_eq!(t.remote_holder(), None);
+        // A refused message writes nothing.
+        t.on_remote(&web(3, RemoteRequest::Heartbeat), ms(810));
+        assert_eq!(t.on_remote(&web(4, drive(1.0, 0.0)), ms(820)), None);
     }
 
     #[test]
     fn the_page_takes_over_from_auto_and_its_sliders_reach_the_law() {
         let (mut t, mut gains) = teleop();
         t.on_remote(&web(1, RemoteRequest::Mode(Mode::Auto)), ms(0));
-        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Manual)), ms(1000));
+        t.on_remote(&web(1, RemoteRequest::Heartbeat), ms(400));
+        t.on_remote(&web(1, RemoteRequest::Mode(Mode::Manual)), ms(800));
         assert_eq!(t.mode(), Mode::Manual);
         assert_eq!(
             t.interventions(),
@@ -538,7 +591,7 @@ mod tests {
             steering_ki: 0.0,
             integral_limit: 123.0, // not the page's to change
         };
-        t.on_remote(&web(1, RemoteRequest::Gains(g)), ms(1100));
+        t.on_remote(&web(1, RemoteRequest::Gains(g)), ms(850));
         assert!(gains.has_changed().unwrap());
         let got = *gains.borrow_and_update();
         assert_eq!(got.speed_gain, 0.35);
@@ -548,16 +601,36 @@ mod tests {
         // A watcher cannot change them; its emergency stop works.
         t.on_remote(
             &web(2, RemoteRequest::Gains(SteeringGains::default())),
-            ms(1200),
+            ms(900),
         );
         assert_eq!(t.gains().speed_gain, 0.35);
         assert_eq!(
-            t.on_remote(&web(2, RemoteRequest::EmergencyStop), ms(1300)),
+            t.on_remote(&web(2, RemoteRequest::EmergencyStop), ms(950)),
             Some(Drive::Stop)
         );
         assert_eq!(t.mode(), Mode::Stopped);
         // Record without a recorder: stays off.
-        t.on_remote(&web(1, RemoteRequest::Record(true)), ms(1400));
+        t.on_remote(&web(1, RemoteRequest::Record(true)), ms(1000));
         assert_eq!(t.recording(), (false, 0));
+    }
+
+    #[test]
+    fn a_flood_of_other_messages_does_not_keep_a_silent_holder_driving() {
+        let (mut t, _) = teleop();
+        let d = t.on_remote(&web(1, drive(1.0, 0.0)), ms(0));
+        assert!(matches!(d, Some(Drive::Command(_))), "{d:?}");
+        // Client 2 floods; client 1 (the holder) is silent: from 0.5 s on the car is
+        // stopped, however many messages arrive.
+        for i in 1..=100u64 {
+            let d = t.on_remote(&web(2, drive(0.0, 1.0)), ms(i * 10));
+            if i * 10 >= 500 {
+                assert_eq!(t.mode(), Mode::Stopped, "at {} ms", i * 10);
+                assert!(
+                    d.is_none() || d == Some(Drive::Stop),
+                    "at {} ms: {d:?}",
+                    i * 10
+                );
+            }
+        }
     }
 }

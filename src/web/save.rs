@@ -77,23 +77,26 @@ pub fn save_gains(path: &Path, g: &SteeringGains) -> Result<(), SaveError> {
         .file_name()
         .map(|n| n.to_string_lossy().to_string())
         .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.jetpilot-save"));
     let perms = std::fs::metadata(path).map_err(io)?.permissions();
+    // One save at a time in this process; each into its own temporary file beside the
+    // config (removed if anything fails), renamed over it only when complete.
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(new.as_bytes())?;
-        f.set_permissions(perms.clone())?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)?;
+        let mut tmp = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(".jetpilot-save")
+            .tempfile_in(dir)?;
+        tmp.write_all(new.as_bytes())?;
+        tmp.as_file().set_permissions(perms.clone())?;
+        tmp.as_file().sync_all()?;
+        tmp.persist(path).map_err(|e| e.error)?;
         if let Ok(d) = std::fs::File::open(dir) {
             let _ = d.sync_all();
         }
         Ok(())
     };
-    write().map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
-    })
+    write().map_err(io)
 }
 
 #[cfg(test)]

@@ -388,6 +388,10 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
     tracing::info!(client = id, "web page connected");
     let mut status = s.status.clone();
     status.mark_changed();
+    // Replies of work done off this loop (saving), so a slow disk never stops this page's
+    // messages, its heartbeat among them, from being read.
+    let (reply_tx, mut reply_rx) = mpsc::channel::<String>(4);
+    let mut last_gains: Option<tokio::time::Instant> = None;
     if !send(
         &mut socket,
         json(&serde_json::json!({"type": "hello", "client": id})),
@@ -407,13 +411,18 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
                     break;
                 }
             }
+            Some(reply) = reply_rx.recv() => {
+                if !send(&mut socket, reply).await {
+                    break;
+                }
+            }
             msg = socket.recv() => {
                 let text = match msg {
                     Some(Ok(Message::Text(t))) => t,
                     Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
                     Some(Ok(_)) => continue,
                 };
-                let reply = handle(&s, id, text.as_str()).await;
+                let reply = handle(&s, id, text.as_str(), &reply_tx, &mut last_gains).await;
                 if let Some(r) = reply
                     && !send(&mut socket, r).await
                 {
@@ -425,8 +434,15 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
     tracing::info!(client = id, "web page disconnected");
 }
 
-/// One message from page `id`; returns a reply for the page, if any.
-async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
+/// One message from page `id`; returns a reply for the page, if any (a save replies later
+/// through `later`).
+async fn handle(
+    s: &AppState,
+    id: ClientId,
+    text: &str,
+    later: &mpsc::Sender<String>,
+    last_gains: &mut Option<tokio::time::Instant>,
+) -> Option<String> {
     let error = |m: String| Some(json(&serde_json::json!({"type": "error", "message": m})));
     let msg: ClientMsg = match serde_json::from_str(text) {
         Ok(m) => m,
@@ -450,6 +466,9 @@ async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
                     return error(format!("another page (client {h}) holds the controls"));
                 }
             }
+            if matches!(request, RemoteRequest::Gains(_)) {
+                *last_gains = Some(tokio::time::Instant::now());
+            }
             if s.remote
                 .send(RemoteMsg {
                     client: id,
@@ -472,20 +491,39 @@ async fn handle(s: &AppState, id: ClientId, text: &str) -> Option<String> {
                     "saving is off: the daemon was not started from a config file".into(),
                 );
             };
-            let result = tokio::task::spawn_blocking(move || {
-                super::save::save_gains(&path, &gains).map(|()| path)
-            })
-            .await;
-            match result {
-                Ok(Ok(path)) => {
-                    tracing::info!(path = %path.display(), ?gains, "web: gains saved to the config");
-                    Some(json(
-                        &serde_json::json!({"type": "saved", "path": path.display().to_string()}),
-                    ))
+            let mut status = s.status.clone();
+            let recent = last_gains.is_some_and(|t| t.elapsed() < Duration::from_secs(1));
+            let later = later.clone();
+            tokio::spawn(async move {
+                if recent {
+                    // This page's last slider move may still be in the daemon's queue: the
+                    // daemon publishes a status after each request it takes.
+                    status.mark_unchanged();
+                    let _ =
+                        tokio::time::timeout(Duration::from_millis(300), status.changed()).await;
                 }
-                Ok(Err(e)) => error(e.to_string()),
-                Err(e) => error(format!("saving failed: {e}")),
-            }
+                let gains = status.borrow().gains;
+                let result = tokio::task::spawn_blocking(move || {
+                    super::save::save_gains(&path, &gains).map(|()| (path, gains))
+                })
+                .await;
+                let reply = match result {
+                    Ok(Ok((path, gains))) => {
+                        tracing::info!(path = %path.display(), ?gains, "web: gains saved to the config");
+                        json(
+                            &serde_json::json!({"type": "saved", "path": path.display().to_string()}),
+                        )
+                    }
+                    Ok(Err(e)) => {
+                        json(&serde_json::json!({"type": "error", "message": e.to_string()}))
+                    }
+                    Err(e) => json(
+                        &serde_json::json!({"type": "error", "message": format!("saving failed: {e}")}),
+                    ),
+                };
+                let _ = later.send(reply).await;
+            });
+            None
         }
     }
 }
