@@ -111,19 +111,14 @@ impl View {
 
     /// Mean and standard deviation of the seen cells, and how many there are.
     pub fn stats(&self) -> (f32, f32, usize) {
-        let seen: Vec<f32> = self
-            .grey
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .collect();
-        if seen.is_empty() {
+        let seen = || self.grey.iter().copied().filter(|v| v.is_finite());
+        let n = seen().count();
+        if n == 0 {
             return (0.0, 0.0, 0);
         }
-        let n = seen.len() as f32;
-        let mean = seen.iter().sum::<f32>() / n;
-        let var = seen.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
-        (mean, var.sqrt(), seen.len())
+        let mean = seen().sum::<f32>() / n as f32;
+        let var = seen().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n as f32;
+        (mean, var.sqrt(), n)
     }
 
     /// Zero mean, unit variance over the seen cells (a flat view stays flat, at 0).

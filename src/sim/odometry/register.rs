@@ -7,7 +7,7 @@
 //! do not fix motion along them, and a curve's concentric edge lines do not fix a turn
 //! about the curve's centre. Without it the image term alone slides along that valley to a
 //! wrong minimum that matches nearly as well (seen on the simulator's mat: NCC 0.995 at a
-//! motion 2 cm and 3 degrees off in a corner); with it, the valley's direction comes from
+//! motion 1.6 cm and 3 degrees off in a corner); with it, the valley's direction comes from
 //! the wheels and the rest from the floor. Pure.
 //!
 //! The motion `(forward, left, yaw)` is the later robot pose in the earlier robot's frame.
@@ -90,8 +90,6 @@ pub fn register(
     let mut x = x0;
     let levels = earlier.len().min(later.len());
     let mut last = Solve::default();
-    // The residuals' variance, re-estimated as the views come into line.
-    let mut var = 0.25f64;
     for level in (0..levels).rev() {
         // The cells compared are fixed per level, where both views see the ground at the
         // start: a changing overlap would bias the solution towards motions that push
@@ -103,7 +101,8 @@ pub fn register(
             if s.cells < 16 {
                 break;
             }
-            var = (s.sq / s.cells as f64).max(MIN_VARIANCE);
+            // The residuals' variance, re-estimated as the views come into line.
+            let var = (s.sq / s.cells as f64).max(MIN_VARIANCE);
             let w = 1.0 / (var * CORRELATED_CELLS);
             // Image term plus prior term; Levenberg-Marquardt's small damping keeps a flat
             // direction from exploding when there is no prior.
@@ -124,7 +123,6 @@ pub fn register(
     let seen = later[0].grey.iter().filter(|v| v.is_finite()).count();
     let within = x.x.abs() <= MAX_STEP_M && x.y.abs() <= MAX_STEP_M && x.z.abs() <= MAX_YAW_RAD;
     let converged = within && fine.cells * 4 >= seen && fine.cells >= 16 && last.cells >= 16;
-    let _ = var;
     let var = if fine.cells > 0 {
         (fine.sq / fine.cells as f64).max(MIN_VARIANCE)
     } else {
