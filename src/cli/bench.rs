@@ -72,9 +72,10 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [224u32, 112],
           value_parser = clap::value_parser!(u32).range(32..=1024))]
     sizes: Vec<u32>,
-    /// Benchmark this .onnx model (at its own contract size) instead of random ResNet-18s.
+    /// Benchmark this .onnx model (at its own contract size) instead of random ResNet-18s;
+    /// repeat to compare several (a float model and its int8 copy), one after the other.
     #[arg(long, value_name = "FILE", conflicts_with = "sizes")]
-    model: Option<PathBuf>,
+    model: Vec<PathBuf>,
     /// Seconds of the paced frame -> command loop for each rate and spinning setting
     /// (CPU per frame and CPU %); 0 skips it.
     #[arg(long, default_value_t = 4.0)]
@@ -403,6 +404,8 @@ fn paired_difference(a: &[f32], b: &[f32]) -> f32 {
 /// The results for one input size.
 struct SizeResult {
     size: u32,
+    /// The model's file, for a `--model` run (random models are temporary files).
+    file: Option<String>,
     contract: String,
     stats: [Stats; 5],
     /// [`paired_difference`] of e2e and the bare run.
@@ -535,6 +538,7 @@ fn bench_model(
     };
     Ok(SizeResult {
         size: s,
+        file: (!model.temporary).then(|| model.path.display().to_string()),
         contract: contract.to_string(),
         paired_overhead,
         stats: samples.each_mut().map(|v| stats(v)),
@@ -666,6 +670,9 @@ fn print_header(h: &Header) {
 fn print_result(r: &SizeResult) {
     let s = r.size;
     println!();
+    if let Some(file) = &r.file {
+        println!("{s}x{s}  {file}");
+    }
     println!("{s}x{s}  model contract: {}", r.contract);
     println!(
         "  {:<44} {:>9} {:>9} {:>9} {:>9} {:>9}",
@@ -830,18 +837,24 @@ pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
     let frames: Vec<Vec<u8>> = (0..FRAMES)
         .map(|i| render_road(FRAME_W, FRAME_H, sample_view(i, FRAMES)))
         .collect();
-    if let (Some(dir), Some(model)) = (&args.peer, &args.model) {
+    if let Some(dir) = &args.peer {
+        let [model] = args.model.as_slice() else {
+            anyhow::bail!("--peer takes exactly one --model");
+        };
         return super::bench_peer::serve(model, args.threads, &frames, dir, &ort_version(library));
     }
-    let models = match &args.model {
-        Some(path) => vec![user_model(path)?],
-        None => {
+    let models: Vec<ModelFile> = match args.model.as_slice() {
+        [] => {
             let weights = Resnet18Weights::random(2, SEED);
             args.sizes
                 .iter()
                 .map(|&s| random_model(s, &weights))
                 .collect::<anyhow::Result<_>>()?
         }
+        paths => paths
+            .iter()
+            .map(|p| user_model(p))
+            .collect::<anyhow::Result<_>>()?,
     };
     let h = header(library, &args);
     print_header(&h);

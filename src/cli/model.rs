@@ -1,4 +1,5 @@
-//! `jetpilot model init` and `jetpilot model info`.
+//! `jetpilot model init`, `jetpilot model info` and `jetpilot model quantize` (in
+//! `model_quantize`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -30,7 +31,16 @@ pub enum ModelCommand {
         /// Where to write the .onnx file.
         #[arg(short, long, value_name = "FILE")]
         output: PathBuf,
+        /// Put the weights in FILE.data beside it, which ONNX Runtime maps instead of
+        /// copying (a lower peak RSS on the robot; see README "Memory").
+        #[arg(long)]
+        external_data: bool,
     },
+    /// Write an int8 copy of a float model (QDQ: per-channel int8 weights, uint8
+    /// activations), calibrated on frames from tubs or JetBot xy folders. Refused, with
+    /// nothing written, if its outputs differ from the float model's by more than
+    /// --tolerance on the calibration frames.
+    Quantize(super::model_quantize::QuantizeArgs),
     /// Print a model's contract, inputs and outputs, and graph statistics (no ONNX Runtime
     /// needed).
     Info {
@@ -65,6 +75,7 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
             channel_order,
             head,
             output,
+            external_data,
         } => {
             let contract = ModelContract {
                 input_size,
@@ -82,7 +93,11 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
             let weights = Resnet18Weights::random(2, seed);
             let model =
                 onnx::resnet18_model(input_size, &weights, &contract, env!("CARGO_PKG_VERSION"))?;
-            onnx::write_model(&output, &model)?;
+            if external_data {
+                onnx::external::write_model_external(&output, &model)?;
+            } else {
+                onnx::write_model(&output, &model)?;
+            }
             println!(
                 "wrote {}: ResNet-18, {:.2} M parameters, random init (seed {seed})\n  contract: {contract}",
                 output.display(),
@@ -90,6 +105,7 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
             );
             Ok(ExitCode::SUCCESS)
         }
+        ModelCommand::Quantize(args) => super::model_quantize::main(args),
         ModelCommand::Info { file } => {
             let s = onnx::inspect_file(&file)?;
             println!("{}", file.display());
@@ -128,6 +144,12 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
                     "  contract   none in the file: `jetpilot run` uses the config's [model] keys (input_size, channel_order, mean, std, output)"
                 ),
                 Err(e) => println!("  contract   INVALID: {e}"),
+            }
+            if let Some(q) = s
+                .metadata
+                .get(jetpilot::policy::quantize::META_QUANTIZATION)
+            {
+                println!("  quantized  {q}");
             }
             for (k, v) in s
                 .metadata

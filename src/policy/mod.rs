@@ -3,6 +3,7 @@
 //! - [`contract`]: input size, channel order, normalisation and output meaning of a model.
 //! - [`preprocess`]: RGB8 frame of any size -> NCHW f32 tensor, with no allocation per frame.
 //! - [`onnx`]: our own ONNX writer (ResNet-18 in torchvision's layout) and reader.
+//! - [`quantize`]: int8 QDQ models from float ones, calibrated on frames.
 //! - [`runtime`] and [`ort_policy`]: ONNX Runtime, loaded from a shared library at run time.
 
 pub mod contract;
@@ -10,6 +11,7 @@ pub mod null;
 pub mod onnx;
 pub mod ort_policy;
 pub mod preprocess;
+pub mod quantize;
 pub mod runtime;
 
 pub use contract::{ChannelOrder, ModelContract, OutputKind};

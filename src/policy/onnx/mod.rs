@@ -4,11 +4,14 @@
 //! - [`graph`]: [`GraphBuilder`], a small builder for initializers, nodes, inputs and outputs.
 //! - [`resnet`]: ResNet-18 in torchvision's exact layout and initializer names, with
 //!   torchvision's random initialisation, and the model contract in `metadata_props`.
+//! - [`external`]: large initializers moved to a page-aligned data file beside the model,
+//!   which ONNX Runtime maps instead of copying.
 //! - [`inspect`]: decodes any ONNX model into a [`ModelSummary`] (inputs, outputs, opsets,
 //!   metadata, op counts, parameter count) without loading ONNX Runtime.
 //!
 //! Files are written with opset 17 and IR version 8, which ONNX Runtime 1.17+ loads.
 
+pub mod external;
 pub mod graph;
 pub mod inspect;
 pub mod proto;
@@ -80,7 +83,11 @@ pub fn encode_model(model: &ModelProto) -> Vec<u8> {
 /// directory, which is synced and then renamed over `path`, so a crash never leaves half a
 /// model behind.
 pub fn write_model(path: &Path, model: &ModelProto) -> Result<(), OnnxError> {
-    let bytes = encode_model(model);
+    write_atomic(path, &encode_model(model))
+}
+
+/// Writes `bytes` to `path` atomically (temporary file, sync, rename, directory sync).
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), OnnxError> {
     let shown = path.display().to_string();
     let write_err = |source| OnnxError::Write {
         path: shown.clone(),
@@ -106,7 +113,7 @@ pub fn write_model(path: &Path, model: &ModelProto) -> Result<(), OnnxError> {
 
     let result = (|| {
         let mut f = fs::File::create(&tmp)?;
-        f.write_all(&bytes)?;
+        f.write_all(bytes)?;
         f.sync_all()?;
         drop(f);
         fs::rename(&tmp, path)?;

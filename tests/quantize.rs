@@ -1,0 +1,151 @@
+//! `jetpilot model quantize` end to end on a random ResNet-18 and a generated JetBot xy
+//! folder: the QDQ model is written with its contract, ONNX Runtime runs every convolution
+//! of it as QLinearConv, a tolerance it misses writes nothing and says by how much, and
+//! bad calibration data is named.
+//!
+//! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use jetpilot::dataset::{encode_jpeg, jetbot_xy};
+use jetpilot::policy::ModelContract;
+use jetpilot::policy::onnx::{self, Resnet18Weights};
+
+fn jetpilot(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(args)
+        .output()
+        .expect("run jetpilot")
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn model(dir: &Path) -> PathBuf {
+    let contract = ModelContract {
+        input_size: 32,
+        ..ModelContract::default()
+    };
+    let path = dir.join("float.onnx");
+    let m = onnx::resnet18_model(32, &Resnet18Weights::random(2, 1), &contract, "test").unwrap();
+    onnx::write_model(&path, &m).unwrap();
+    path
+}
+
+/// 30 frames, one a second, each a different pattern of stripes and shades.
+fn xy_folder(dir: &Path) -> PathBuf {
+    let out = dir.join("xy");
+    std::fs::create_dir_all(&out).unwrap();
+    for i in 0..30u32 {
+        let rgb: Vec<u8> = (0..64 * 64)
+            .flat_map(|p| {
+                let (x, y) = (p % 64, p / 64);
+                let v = ((x * (i + 1) + y * (30 - i)) % 256) as u8;
+                [v, v.wrapping_mul(3), 255 - v]
+            })
+            .collect();
+        let mut jpeg = Vec::new();
+        encode_jpeg(&rgb, 64, 64, &mut jpeg).unwrap();
+        let uuid1 = format!("{:08x}-0000-1000-8000-000000000000", i * 10_000_000);
+        jetbot_xy::write_sample(&out, 100 + i, 120, &jpeg, &uuid1).unwrap();
+    }
+    out
+}
+
+/// `jetpilot model quantize FLOAT -o OUT --calibration DATA --threads 1 EXTRA...`.
+fn quantize(float: &Path, out: &Path, data: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "model",
+        "quantize",
+        float.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--calibration",
+        data.to_str().unwrap(),
+        "--threads",
+        "1",
+    ];
+    args.extend_from_slice(extra);
+    jetpilot(&args)
+}
+
+#[test]
+fn quantizes_keeps_the_contract_and_runs_as_integer_convolutions() {
+    let dir = tempfile::tempdir().unwrap();
+    let (float, data) = (model(dir.path()), xy_folder(dir.path()));
+    let out = dir.path().join("int8.onnx");
+    let run = quantize(&float, &out, &data, &[]);
+    let t = text(&run);
+    assert!(run.status.success(), "{t}");
+    assert!(t.contains("20 batch norms folded, 30 activations"), "{t}");
+    assert!(t.contains("calibrating on 24 frames (6 held out)"), "{t}");
+    assert!(
+        t.contains(
+            "runs 20 convolutions as QLinearConv (0 left in float), 8 additions as QLinearAdd"
+        ),
+        "{t}"
+    );
+    assert!(t.contains("on the held-out frames"), "{t}");
+    // int8 weights: about a quarter of the float file.
+    let (fs, qs) = (
+        std::fs::metadata(&float).unwrap().len(),
+        std::fs::metadata(&out).unwrap().len(),
+    );
+    assert!(qs * 3 < fs, "int8 {qs} bytes, float {fs}");
+
+    let info = jetpilot(&["model", "info", out.to_str().unwrap()]);
+    let t = text(&info);
+    assert!(info.status.success(), "{t}");
+    assert!(t.contains("contract   input [1,3,32,32]"), "{t}");
+    assert!(t.contains("quantized  int8 QDQ: per-channel symmetric 8-bit weights, uint8 activations, percentile 99.99 ranges from 24 frames"), "{t}");
+    assert!(t.contains("QuantizeLinear 30"), "{t}");
+}
+
+#[test]
+fn a_missed_tolerance_writes_nothing_and_says_by_how_much() {
+    let dir = tempfile::tempdir().unwrap();
+    let (float, data) = (model(dir.path()), xy_folder(dir.path()));
+    let out = dir.path().join("int8.onnx");
+    let run = quantize(
+        &float,
+        &out,
+        &data,
+        &["--method", "minmax", "--tolerance", "0"],
+    );
+    let t = text(&run);
+    assert!(!run.status.success(), "{t}");
+    assert!(
+        t.contains("refused: the quantized outputs differ from the float model's by up to"),
+        "{t}"
+    );
+    assert!(
+        t.contains("more than --tolerance 0; nothing written"),
+        "{t}"
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn bad_calibration_data_and_models_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let float = model(dir.path());
+    let out = dir.path().join("int8.onnx");
+    let missing = dir.path().join("no-such-folder");
+    let run = quantize(&float, &out, &missing, &[]);
+    assert!(!run.status.success());
+    assert!(text(&run).contains("no-such-folder"), "{}", text(&run));
+
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, b"not a model").unwrap();
+    let data = xy_folder(dir.path());
+    let run = quantize(&junk, &out, &data, &[]);
+    assert!(!run.status.success());
+    assert!(text(&run).contains("junk.onnx"), "{}", text(&run));
+    assert!(!out.exists());
+}
