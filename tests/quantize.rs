@@ -1,7 +1,8 @@
 //! `jetpilot model quantize` end to end on a random ResNet-18 and a generated JetBot xy
 //! folder: the QDQ model is written with its contract, ONNX Runtime runs every convolution
 //! of it as QLinearConv, a tolerance it misses writes nothing and says by how much, and
-//! bad calibration data is named.
+//! bad calibration data is named. `jetpilot model optimize`: the pre-optimised model gives
+//! the same answers through the daemon's loader and is refused on another machine.
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
@@ -9,8 +10,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use jetpilot::dataset::{encode_jpeg, jetbot_xy};
-use jetpilot::policy::ModelContract;
 use jetpilot::policy::onnx::{self, Resnet18Weights};
+use jetpilot::policy::optimize::{META_OPTIMIZED_FOR, append_metadata};
+use jetpilot::policy::ort_policy::OrtOptions;
+use jetpilot::policy::runtime::Provider;
+use jetpilot::policy::{ModelContract, OrtPolicy, Policy};
 
 fn jetpilot(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_jetpilot"))
@@ -148,4 +152,80 @@ fn bad_calibration_data_and_models_are_named() {
     assert!(!run.status.success());
     assert!(text(&run).contains("junk.onnx"), "{}", text(&run));
     assert!(!out.exists());
+}
+
+fn load(path: &Path) -> Result<OrtPolicy, jetpilot::policy::PolicyError> {
+    OrtPolicy::load(
+        path,
+        &OrtOptions {
+            library: None,
+            providers: &[Provider::Cpu],
+            intra_threads: 1,
+            allow_spinning: false,
+            fallback_contract: &ModelContract::default(),
+        },
+    )
+}
+
+#[test]
+fn optimize_writes_a_model_that_loads_as_it_is_and_only_on_its_machine() {
+    let dir = tempfile::tempdir().unwrap();
+    let float = model(dir.path());
+    let out = dir.path().join("opt.onnx");
+    let run = jetpilot(&[
+        "model",
+        "optimize",
+        float.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let t = text(&run);
+    assert!(run.status.success(), "{t}");
+    assert!(t.contains("outputs match the original"), "{t}");
+    // The weights live in opt.onnx.data; the model file itself is small.
+    let data = dir.path().join("opt.onnx.data");
+    assert!(std::fs::metadata(&out).unwrap().len() < 100_000);
+    assert!(std::fs::metadata(&data).unwrap().len() > 40_000_000);
+    let (mut a, mut b) = (load(&float).unwrap(), load(&out).unwrap());
+    let x: Vec<f32> = (0..3 * 32 * 32)
+        .map(|i| (i % 17) as f32 / 8.0 - 1.0)
+        .collect();
+    let (u, v) = (a.infer(&x).unwrap(), b.infer(&x).unwrap());
+    assert!(
+        (u[0] - v[0]).abs() < 1e-5 && (u[1] - v[1]).abs() < 1e-5,
+        "{u:?} {v:?}"
+    );
+    assert_eq!(b.contract(), a.contract(), "the contract survives");
+
+    // A model made for another machine is refused, both machines named.
+    let mut bytes = std::fs::read(&float).unwrap();
+    append_metadata(
+        &mut bytes,
+        META_OPTIMIZED_FOR,
+        "onnxruntime 0.0.1, riscv64, elsewhere",
+    );
+    let other = dir.path().join("other.onnx");
+    std::fs::write(&other, &bytes).unwrap();
+    let err = load(&other).err().expect("refused").to_string();
+    assert!(
+        err.contains("pre-optimised for `onnxruntime 0.0.1, riscv64, elsewhere`")
+            && err.contains("this machine is `onnxruntime ")
+            && err.contains("jetpilot model optimize"),
+        "{err}"
+    );
+
+    // Writing over the input is refused before anything is written.
+    let run = jetpilot(&[
+        "model",
+        "optimize",
+        float.to_str().unwrap(),
+        "-o",
+        float.to_str().unwrap(),
+    ]);
+    assert!(!run.status.success());
+    assert!(
+        text(&run).contains("must differ from the input"),
+        "{}",
+        text(&run)
+    );
 }

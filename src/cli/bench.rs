@@ -215,12 +215,16 @@ fn ort_err<R>(e: ort::Error<R>) -> anyhow::Error {
     anyhow::anyhow!("ONNX Runtime: {e}")
 }
 
-/// A plain session as `OrtPolicy` builds it (Level3, same intra-op threads, spinning off,
-/// CPU).
+/// A plain session as `OrtPolicy` builds it (Level3, or none for a model pre-optimised
+/// by `model optimize`; same intra-op threads, spinning off, CPU).
 fn bare_session(env: &Environment, threads: usize, path: &Path) -> anyhow::Result<Session> {
+    let level = match jetpilot::policy::optimize::optimized_for(path) {
+        Some(_) => GraphOptimizationLevel::Disable,
+        None => GraphOptimizationLevel::Level3,
+    };
     let mut builder = Session::builder(env)
         .map_err(ort_err)?
-        .with_optimization_level(GraphOptimizationLevel::Level3)
+        .with_optimization_level(level)
         .map_err(ort_err)?;
     if threads > 0 {
         builder = builder.with_intra_threads(threads).map_err(ort_err)?;
@@ -228,8 +232,8 @@ fn bare_session(env: &Environment, threads: usize, path: &Path) -> anyhow::Resul
     for (key, value) in spinning_entries(false) {
         builder = builder.with_config_entry(key, value).map_err(ort_err)?;
     }
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    builder.commit_from_memory(&bytes).map_err(ort_err)
+    // From the file, as the daemon does (and so that external weights are found).
+    builder.commit_from_file(path).map_err(ort_err)
 }
 
 fn bare_run(session: &mut Session, inputs: &[SessionInputValue<'_>]) -> anyhow::Result<[f32; 2]> {
@@ -594,21 +598,6 @@ fn cpu_description() -> String {
     format!("{cpu} ({cpus} CPUs available{board})")
 }
 
-/// The version from the build info (`git-branch=rel-1.23.2`), else from the file name.
-fn ort_version(library: &Path) -> String {
-    let info = ort::info();
-    let from_info = info
-        .split(',')
-        .find_map(|p| p.trim().strip_prefix("git-branch=rel-"));
-    let from_name = library
-        .file_name()
-        .and_then(|n| n.to_str())
-        .and_then(|n| n.strip_prefix("libonnxruntime.so."));
-    from_info
-        .or(from_name)
-        .map_or_else(|| "version unknown".into(), str::to_string)
-}
-
 struct Header {
     library: String,
     version: String,
@@ -621,7 +610,7 @@ struct Header {
 fn header(library: &Path, args: &BenchArgs) -> Header {
     Header {
         library: library.display().to_string(),
-        version: ort_version(library),
+        version: runtime::ort_version(library),
         cpu: cpu_description(),
         threads: if args.threads == 0 {
             "ONNX Runtime default".into()
@@ -841,7 +830,13 @@ pub fn main(args: BenchArgs) -> anyhow::Result<ExitCode> {
         let [model] = args.model.as_slice() else {
             anyhow::bail!("--peer takes exactly one --model");
         };
-        return super::bench_peer::serve(model, args.threads, &frames, dir, &ort_version(library));
+        return super::bench_peer::serve(
+            model,
+            args.threads,
+            &frames,
+            dir,
+            &runtime::ort_version(library),
+        );
     }
     let models: Vec<ModelFile> = match args.model.as_slice() {
         [] => {

@@ -142,6 +142,28 @@ fn check_inputs(opts: &InstallOptions) -> Result<PlanInputs<'_>, ImageError> {
     }
     let summary = crate::policy::onnx::inspect::inspect_file(&opts.model)
         .map_err(|e| input_err(&opts.model, e.to_string()))?;
+    // One file goes onto the card: not a model whose weights live beside it, nor one
+    // pre-optimised for the machine building the image (the robot would refuse it).
+    if let Some(machine) = summary
+        .metadata
+        .get(crate::policy::optimize::META_OPTIMIZED_FOR)
+    {
+        return Err(input_err(
+            &opts.model,
+            format!(
+                "it was pre-optimised for `{machine}` by `jetpilot model optimize`: install the original model and run `model optimize` on the robot"
+            ),
+        ));
+    }
+    if summary.external_initializers > 0 {
+        return Err(input_err(
+            &opts.model,
+            format!(
+                "{} of its initializers live in a separate data file, and the installer copies one model file",
+                summary.external_initializers
+            ),
+        ));
+    }
     let contract = summary
         .contract()
         .map_err(|e| input_err(&opts.model, e.to_string()))?;

@@ -3,12 +3,15 @@
 //! - [`contract`]: input size, channel order, normalisation and output meaning of a model.
 //! - [`preprocess`]: RGB8 frame of any size -> NCHW f32 tensor, with no allocation per frame.
 //! - [`onnx`]: our own ONNX writer (ResNet-18 in torchvision's layout) and reader.
+//! - [`optimize`]: models pre-optimised by ONNX Runtime for this machine, loaded without a
+//!   second copy of the weights.
 //! - [`quantize`]: int8 QDQ models from float ones, calibrated on frames.
 //! - [`runtime`] and [`ort_policy`]: ONNX Runtime, loaded from a shared library at run time.
 
 pub mod contract;
 pub mod null;
 pub mod onnx;
+pub mod optimize;
 pub mod ort_policy;
 pub mod preprocess;
 pub mod quantize;

@@ -15,6 +15,7 @@ use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 
+use super::optimize;
 use super::runtime::{self, Provider};
 use super::{ModelContract, Policy, PolicyError, Result};
 
@@ -66,10 +67,25 @@ impl OrtPolicy {
         if len == 0 {
             return Err(model_err("the file is empty".into()));
         }
-        let (_, env) = runtime::environment(opts.library)?;
+        let (library, env) = runtime::environment(opts.library)?;
+        // A model pre-optimised by `jetpilot model optimize` is loaded as it is, and only on
+        // the machine it was made for (its graph may be laid out for that CPU).
+        let level = match optimize::optimized_for(path) {
+            Some(made_for) => {
+                let here = optimize::machine(&runtime::ort_version(library));
+                if made_for != here {
+                    return Err(model_err(format!(
+                        "it was pre-optimised for `{made_for}`, this machine is `{here}`: run `jetpilot model optimize` on the original model here, or use the original"
+                    )));
+                }
+                tracing::info!(model = %shown, "pre-optimised for this machine: loading it with ONNX Runtime's optimisations off");
+                GraphOptimizationLevel::Disable
+            }
+            None => GraphOptimizationLevel::Level3,
+        };
         let mut builder = Session::builder(env)
             .map_err(|e| PolicyError::Inference(e.to_string()))?
-            .with_optimization_level(GraphOptimizationLevel::Level3)
+            .with_optimization_level(level)
             .map_err(|e| PolicyError::Inference(e.to_string()))?;
         if opts.intra_threads > 0 {
             builder = builder

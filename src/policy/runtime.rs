@@ -167,6 +167,22 @@ pub fn environment(
     Ok((p.as_path(), e))
 }
 
+/// The loaded library's version from its build info (`git-branch=rel-1.23.2`), else from
+/// its file name (`libonnxruntime.so.1.23.2`).
+pub fn ort_version(library: &Path) -> String {
+    let info = ort::info();
+    let from_info = info
+        .split(',')
+        .find_map(|p| p.trim().strip_prefix("git-branch=rel-"));
+    let from_name = library
+        .file_name()
+        .and_then(|n| n.to_str())
+        .and_then(|n| n.strip_prefix("libonnxruntime.so."));
+    from_info
+        .or(from_name)
+        .map_or_else(|| "version unknown".into(), str::to_string)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

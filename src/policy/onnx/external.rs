@@ -1,19 +1,13 @@
-//! Initializers stored outside the model file (ONNX "external data"): the weights go to
-//! `<model>.data` beside it, each at a page-aligned offset, and the model keeps only their
-//! location, offset and length. ONNX Runtime then maps the data file into memory instead
-//! of reading the weights into its own buffers, so a daemon holds one copy of them fewer.
+//! Initializers stored outside the model file (ONNX "external data": the model keeps
+//! each tensor's file, offset and length), as `jetpilot model optimize` writes them and
+//! other exporters do for large models: read back in so such a model can be rewritten.
 
 use std::path::{Path, PathBuf};
 
 use prost::bytes::Bytes;
 
-use super::proto::{DATA_LOCATION_EXTERNAL, ModelProto, StringStringEntryProto};
-use super::{OnnxError, write_atomic, write_model};
-
-/// Offsets in the data file are multiples of this (the page size ONNX Runtime maps in).
-pub const ALIGN: usize = 4096;
-/// Initializers smaller than this stay inside the model file.
-pub const MIN_BYTES: usize = 1024;
+use super::OnnxError;
+use super::proto::{DATA_LOCATION_EXTERNAL, ModelProto};
 
 /// The data file's name for a model at `path`: `model.onnx` -> `model.onnx.data`.
 pub fn data_path(path: &Path) -> PathBuf {
@@ -23,50 +17,6 @@ pub fn data_path(path: &Path) -> PathBuf {
         .unwrap_or_default();
     name.push(".data");
     path.with_file_name(name)
-}
-
-/// Moves every initializer of at least [`MIN_BYTES`] of `raw_data` into one buffer; the
-/// model's tensors point at `location` (a file name relative to the model's folder).
-pub fn split(model: &ModelProto, location: &str) -> (ModelProto, Vec<u8>) {
-    let mut out = model.clone();
-    let mut data = Vec::new();
-    if let Some(g) = out.graph.as_mut() {
-        for t in &mut g.initializer {
-            if t.raw_data.len() < MIN_BYTES {
-                continue;
-            }
-            let offset = data.len().div_ceil(ALIGN) * ALIGN;
-            data.resize(offset, 0);
-            data.extend_from_slice(&t.raw_data);
-            let entry = |k: &str, v: String| StringStringEntryProto {
-                key: k.into(),
-                value: v,
-            };
-            t.external_data = vec![
-                entry("location", location.to_string()),
-                entry("offset", offset.to_string()),
-                entry("length", t.raw_data.len().to_string()),
-            ];
-            t.data_location = DATA_LOCATION_EXTERNAL;
-            t.raw_data = Bytes::new();
-        }
-    }
-    (out, data)
-}
-
-/// Writes `model` to `path` with its large initializers in [`data_path`]`(path)`, both
-/// atomically, the data first (a crash between the two leaves the old model whole or
-/// a new data file beside an old model that does not read it). Returns the data file.
-pub fn write_model_external(path: &Path, model: &ModelProto) -> Result<PathBuf, OnnxError> {
-    let data_file = data_path(path);
-    let location = data_file
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let (small, data) = split(model, &location);
-    write_atomic(&data_file, &data)?;
-    write_model(path, &small)?;
-    Ok(data_file)
 }
 
 /// Reads every external initializer of `model` back into `raw_data` (from files relative to
@@ -128,47 +78,10 @@ pub fn inline(model: &mut ModelProto, base_dir: &Path) -> Result<(), OnnxError> 
 mod tests {
     use super::*;
     use crate::policy::onnx::graph::GraphBuilder;
+    use crate::policy::onnx::proto::StringStringEntryProto;
 
     #[test]
-    fn large_tensors_go_out_page_aligned_small_ones_stay() {
-        let mut g = GraphBuilder::new("t");
-        g.initializer_f32("big", &[300], &[1.5; 300]).unwrap(); // 1200 bytes
-        g.initializer_f32("small", &[2], &[1.0, 2.0]).unwrap();
-        g.initializer_f32("big2", &[400], &[-2.0; 400]).unwrap();
-        g.input_f32("x", &[300.into()]);
-        g.node("Add", &["x", "big"], &["y"], vec![]);
-        g.output_f32("y", &[300.into()]);
-        let m = g.finish("t", "0", &[]).unwrap();
-        let (out, data) = split(&m, "m.onnx.data");
-        let inits = &out.graph.as_ref().unwrap().initializer;
-        let meta = |i: usize| -> Vec<(String, String)> {
-            inits[i]
-                .external_data
-                .iter()
-                .map(|e| (e.key.clone(), e.value.clone()))
-                .collect()
-        };
-        assert_eq!(
-            meta(0),
-            vec![
-                ("location".into(), "m.onnx.data".into()),
-                ("offset".into(), "0".into()),
-                ("length".into(), "1200".into())
-            ]
-        );
-        assert_eq!(meta(2)[1], ("offset".into(), "4096".into()));
-        assert!(inits[1].external_data.is_empty() && inits[1].raw_data.len() == 8);
-        assert_eq!(data.len(), 4096 + 1600);
-        assert_eq!(&data[..4], &1.5f32.to_le_bytes());
-        assert_eq!(&data[4096..4100], &(-2.0f32).to_le_bytes());
-        assert_eq!(
-            data_path(Path::new("/a/m.onnx")),
-            PathBuf::from("/a/m.onnx.data")
-        );
-    }
-
-    #[test]
-    fn written_external_reads_back_the_same_and_a_short_data_file_is_named() {
+    fn external_tensors_are_read_back_and_a_short_data_file_is_named() {
         let dir = tempfile::tempdir().unwrap();
         let mut g = GraphBuilder::new("t");
         g.initializer_f32("big", &[300], &[1.5; 300]).unwrap();
@@ -176,18 +89,37 @@ mod tests {
         g.node("Add", &["x", "big"], &["y"], vec![]);
         g.output_f32("y", &[300.into()]);
         let m = g.finish("t", "0", &[]).unwrap();
+        // The same model with `big` at offset 4096 of m.onnx.data.
+        let mut ext = m.clone();
+        let t = &mut ext.graph.as_mut().unwrap().initializer[0];
+        let mut data = vec![0u8; 4096];
+        data.extend_from_slice(&t.raw_data);
+        let entry = |k: &str, v: &str| StringStringEntryProto {
+            key: k.into(),
+            value: v.into(),
+        };
+        t.external_data = vec![
+            entry("location", "m.onnx.data"),
+            entry("offset", "4096"),
+            entry("length", "1200"),
+        ];
+        t.data_location = DATA_LOCATION_EXTERNAL;
+        t.raw_data = Bytes::new();
         let path = dir.path().join("m.onnx");
-        let data = write_model_external(&path, &m).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        let mut back = <ModelProto as prost::Message>::decode(&bytes[..]).unwrap();
+        std::fs::write(data_path(&path), &data).unwrap();
+        let mut back = ext.clone();
         inline(&mut back, dir.path()).unwrap();
         assert_eq!(back, m);
-        std::fs::write(&data, [0u8; 100]).unwrap();
-        let mut again = <ModelProto as prost::Message>::decode(&bytes[..]).unwrap();
+        std::fs::write(data_path(&path), [0u8; 100]).unwrap();
+        let mut again = ext.clone();
         let err = inline(&mut again, dir.path()).unwrap_err().to_string();
         assert!(
             err.contains("`big`") && err.contains("m.onnx.data (100 bytes)"),
             "{err}"
+        );
+        assert_eq!(
+            data_path(Path::new("/a/m.onnx")),
+            PathBuf::from("/a/m.onnx.data")
         );
     }
 }

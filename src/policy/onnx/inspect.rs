@@ -60,6 +60,8 @@ pub struct ModelSummary {
     /// Nodes of the main graph (subgraphs are not counted).
     pub nodes: usize,
     pub initializers: usize,
+    /// Initializers whose values live in a separate data file ("external data").
+    pub external_initializers: usize,
     /// Sum of the element counts of all initializers.
     pub parameters: u64,
     /// Node count per `op_type` in the main graph.
@@ -148,6 +150,14 @@ pub fn inspect_bytes(bytes: Bytes, path_for_errors: &str) -> Result<ModelSummary
         outputs,
         nodes: graph.node.len(),
         initializers: graph.initializer.len(),
+        external_initializers: graph
+            .initializer
+            .iter()
+            .filter(|t| {
+                t.data_location == super::proto::DATA_LOCATION_EXTERNAL
+                    || !t.external_data.is_empty()
+            })
+            .count(),
         parameters: graph
             .initializer
             .iter()

@@ -4,8 +4,7 @@
 //! - [`graph`]: [`GraphBuilder`], a small builder for initializers, nodes, inputs and outputs.
 //! - [`resnet`]: ResNet-18 in torchvision's exact layout and initializer names, with
 //!   torchvision's random initialisation, and the model contract in `metadata_props`.
-//! - [`external`]: large initializers moved to a page-aligned data file beside the model,
-//!   which ONNX Runtime maps instead of copying.
+//! - [`external`]: initializers kept in a data file beside the model, read back in.
 //! - [`inspect`]: decodes any ONNX model into a [`ModelSummary`] (inputs, outputs, opsets,
 //!   metadata, op counts, parameter count) without loading ONNX Runtime.
 //!
