@@ -352,6 +352,43 @@ fn bad_inputs_are_refused_without_touching_the_image() {
     std::fs::write(&o.model, b"\x08\x07garbage").unwrap();
     refused(&o, &["broken.onnx"]);
 
+    // A model pre-optimised for the machine building the image would be refused by the
+    // robot; one whose weights live in a data file would arrive without them.
+    let mut o = base.opts.clone();
+    o.model = dir.join("optimised.onnx");
+    let mut bytes = std::fs::read(&base.opts.model).unwrap();
+    jetpilot::policy::optimize::append_metadata(
+        &mut bytes,
+        jetpilot::policy::optimize::META_OPTIMIZED_FOR,
+        "onnxruntime 1.23.2, x86_64, laptop",
+    );
+    std::fs::write(&o.model, &bytes).unwrap();
+    refused(
+        &o,
+        &[
+            "optimised.onnx",
+            "pre-optimised for `onnxruntime 1.23.2, x86_64, laptop`",
+            "on the robot",
+        ],
+    );
+    let mut o = base.opts.clone();
+    o.model = dir.join("external.onnx");
+    let mut m = <jetpilot::policy::onnx::ModelProto as prost::Message>::decode(
+        &std::fs::read(&base.opts.model).unwrap()[..],
+    )
+    .unwrap();
+    let t = &mut m.graph.as_mut().unwrap().initializer[0];
+    t.data_location = jetpilot::policy::onnx::proto::DATA_LOCATION_EXTERNAL;
+    t.raw_data = Default::default();
+    jetpilot::policy::onnx::write_model(&o.model, &m).unwrap();
+    refused(
+        &o,
+        &[
+            "external.onnx",
+            "1 of its initializers live in a separate data file",
+        ],
+    );
+
     let mut o = base.opts.clone();
     o.config = (
         "demo.toml".into(),

@@ -70,7 +70,7 @@ enum Command {
     /// Summarise an interventions log: count, test time, autonomy (the paper's formula).
     #[command(subcommand)]
     Interventions(interventions::InterventionsCommand),
-    /// Create or inspect ONNX policy models.
+    /// Create, inspect, quantize (int8) or pre-optimise ONNX policy models.
     #[command(subcommand)]
     Model(model::ModelCommand),
     /// Measure preprocessing, inference, the steering law + I2C encoding, and frame -> motor
