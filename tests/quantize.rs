@@ -6,15 +6,14 @@
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use jetpilot::dataset::{encode_jpeg, jetbot_xy};
-use jetpilot::policy::onnx::{self, Resnet18Weights};
+use jetpilot::policy::Policy;
 use jetpilot::policy::optimize::{META_OPTIMIZED_FOR, append_metadata};
-use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
-use jetpilot::policy::{ModelContract, OrtPolicy, Policy};
 
 fn jetpilot(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_jetpilot"))
@@ -29,17 +28,6 @@ fn text(out: &Output) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     )
-}
-
-fn model(dir: &Path) -> PathBuf {
-    let contract = ModelContract {
-        input_size: 32,
-        ..ModelContract::default()
-    };
-    let path = dir.join("float.onnx");
-    let m = onnx::resnet18_model(32, &Resnet18Weights::random(2, 1), &contract, "test").unwrap();
-    onnx::write_model(&path, &m).unwrap();
-    path
 }
 
 /// 30 frames, one a second, each a different pattern of stripes and shades.
@@ -82,7 +70,10 @@ fn quantize(float: &Path, out: &Path, data: &Path, extra: &[&str]) -> Output {
 #[test]
 fn quantizes_keeps_the_contract_and_runs_as_integer_convolutions() {
     let dir = tempfile::tempdir().unwrap();
-    let (float, data) = (model(dir.path()), xy_folder(dir.path()));
+    let (float, data) = (
+        common::write_model(dir.path(), 32, 1),
+        xy_folder(dir.path()),
+    );
     let out = dir.path().join("int8.onnx");
     let run = quantize(&float, &out, &data, &[]);
     let t = text(&run);
@@ -114,7 +105,10 @@ fn quantizes_keeps_the_contract_and_runs_as_integer_convolutions() {
 #[test]
 fn a_missed_tolerance_writes_nothing_and_says_by_how_much() {
     let dir = tempfile::tempdir().unwrap();
-    let (float, data) = (model(dir.path()), xy_folder(dir.path()));
+    let (float, data) = (
+        common::write_model(dir.path(), 32, 1),
+        xy_folder(dir.path()),
+    );
     let out = dir.path().join("int8.onnx");
     let run = quantize(
         &float,
@@ -138,7 +132,7 @@ fn a_missed_tolerance_writes_nothing_and_says_by_how_much() {
 #[test]
 fn bad_calibration_data_and_models_are_named() {
     let dir = tempfile::tempdir().unwrap();
-    let float = model(dir.path());
+    let float = common::write_model(dir.path(), 32, 1);
     let out = dir.path().join("int8.onnx");
     let missing = dir.path().join("no-such-folder");
     let run = quantize(&float, &out, &missing, &[]);
@@ -154,23 +148,10 @@ fn bad_calibration_data_and_models_are_named() {
     assert!(!out.exists());
 }
 
-fn load(path: &Path) -> Result<OrtPolicy, jetpilot::policy::PolicyError> {
-    OrtPolicy::load(
-        path,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            intra_threads: 1,
-            allow_spinning: false,
-            fallback_contract: &ModelContract::default(),
-        },
-    )
-}
-
 #[test]
 fn optimize_writes_a_model_that_loads_as_it_is_and_only_on_its_machine() {
     let dir = tempfile::tempdir().unwrap();
-    let float = model(dir.path());
+    let float = common::write_model(dir.path(), 32, 1);
     let out = dir.path().join("opt.onnx");
     let run = jetpilot(&[
         "model",
@@ -186,7 +167,10 @@ fn optimize_writes_a_model_that_loads_as_it_is_and_only_on_its_machine() {
     let data = dir.path().join("opt.onnx.data");
     assert!(std::fs::metadata(&out).unwrap().len() < 100_000);
     assert!(std::fs::metadata(&data).unwrap().len() > 40_000_000);
-    let (mut a, mut b) = (load(&float).unwrap(), load(&out).unwrap());
+    let (mut a, mut b) = (
+        common::try_load_ort(&float).unwrap(),
+        common::try_load_ort(&out).unwrap(),
+    );
     let x: Vec<f32> = (0..3 * 32 * 32)
         .map(|i| (i % 17) as f32 / 8.0 - 1.0)
         .collect();
@@ -206,7 +190,10 @@ fn optimize_writes_a_model_that_loads_as_it_is_and_only_on_its_machine() {
     );
     let other = dir.path().join("other.onnx");
     std::fs::write(&other, &bytes).unwrap();
-    let err = load(&other).err().expect("refused").to_string();
+    let err = common::try_load_ort(&other)
+        .err()
+        .expect("refused")
+        .to_string();
     assert!(
         err.contains("pre-optimised for `onnxruntime 0.0.1, riscv64, elsewhere`")
             && err.contains("this machine is `onnxruntime ")

@@ -31,7 +31,7 @@ use jetpilot::hw::bus::StdDelay;
 use jetpilot::hw::motor_hat::HatSettings;
 use jetpilot::hw::{HatLayout, MotorHat, MotorOutput};
 use jetpilot::policy::onnx::{self, Resnet18Weights};
-use jetpilot::policy::ort_policy::{OrtOptions, spinning_entries};
+use jetpilot::policy::ort_policy::OrtOptions;
 use jetpilot::policy::runtime::{self, Provider};
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
 use ort::environment::Environment;
@@ -222,16 +222,7 @@ fn bare_session(env: &Environment, threads: usize, path: &Path) -> anyhow::Resul
         Some(_) => GraphOptimizationLevel::Disable,
         None => GraphOptimizationLevel::Level3,
     };
-    let mut builder = Session::builder(env)
-        .map_err(ort_err)?
-        .with_optimization_level(level)
-        .map_err(ort_err)?;
-    if threads > 0 {
-        builder = builder.with_intra_threads(threads).map_err(ort_err)?;
-    }
-    for (key, value) in spinning_entries(false) {
-        builder = builder.with_config_entry(key, value).map_err(ort_err)?;
-    }
+    let mut builder = runtime::session_builder(env, level, threads, false).map_err(ort_err)?;
     // From the file, as the daemon does (and so that external weights are found).
     builder.commit_from_file(path).map_err(ort_err)
 }

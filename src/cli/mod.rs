@@ -9,6 +9,7 @@ mod camera;
 mod image;
 mod interventions;
 mod model;
+mod model_optimize;
 mod model_quantize;
 mod panel;
 mod poses;

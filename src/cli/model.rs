@@ -1,5 +1,5 @@
-//! `jetpilot model init`, `jetpilot model info` and `jetpilot model quantize` (in
-//! `model_quantize`).
+//! `jetpilot model init` and `jetpilot model info`; `quantize` and `optimize` live in
+//! `model_quantize` and `model_optimize`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -108,9 +108,7 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         ModelCommand::Quantize(args) => super::model_quantize::main(args),
-        ModelCommand::Optimize { input, output } => {
-            super::model_quantize::optimize(&input, &output)
-        }
+        ModelCommand::Optimize { input, output } => super::model_optimize::main(&input, &output),
         ModelCommand::Info { file } => {
             let s = onnx::inspect_file(&file)?;
             println!("{}", file.display());

@@ -8,11 +8,9 @@ use anyhow::Context;
 use jetpilot::control::SteeringGains;
 use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
 use jetpilot::policy::onnx::{self, ModelProto};
-use jetpilot::policy::ort_policy::OrtOptions;
 use jetpilot::policy::quantize::calibrate::{self, Runner};
 use jetpilot::policy::quantize::{ActivationType, Prepared, QdqOptions, RangeMethod};
-use jetpilot::policy::runtime::Provider;
-use jetpilot::policy::{ModelContract, OrtPolicy, Policy, Preprocessor};
+use jetpilot::policy::{ModelContract, Preprocessor};
 use prost::Message;
 
 #[derive(Debug, clap::Args)]
@@ -101,9 +99,14 @@ fn load(frames: &[LabelledFrame], contract: &ModelContract) -> anyhow::Result<Ve
 
 fn read_model(path: &Path) -> anyhow::Result<(ModelProto, ModelContract)> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let summary = onnx::inspect_bytes(bytes.clone().into(), &path.display().to_string())?;
-    let contract = summary
-        .contract()
+    let mut model = ModelProto::decode(&bytes[..])
+        .with_context(|| format!("not an ONNX model: {}", path.display()))?;
+    let metadata = model
+        .metadata_props
+        .iter()
+        .map(|e| (e.key.clone(), e.value.clone()))
+        .collect();
+    let contract = ModelContract::from_metadata(&metadata)
         .with_context(|| format!("model {}", path.display()))?
         .with_context(|| {
             format!(
@@ -111,8 +114,6 @@ fn read_model(path: &Path) -> anyhow::Result<(ModelProto, ModelContract)> {
                 path.display()
             )
         })?;
-    let mut model = ModelProto::decode(&bytes[..])
-        .with_context(|| format!("not an ONNX model: {}", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     onnx::external::inline(&mut model, dir)?;
     Ok((model, contract))
@@ -231,73 +232,4 @@ pub fn main(args: QuantizeArgs) -> anyhow::Result<ExitCode> {
         count("QLinearAdd"),
     );
     Ok(ExitCode::SUCCESS)
-}
-
-/// `jetpilot model optimize`: the optimised copy, checked against the original on
-/// deterministic inputs before it is kept.
-pub fn optimize(input: &Path, output: &Path) -> anyhow::Result<ExitCode> {
-    if input == output {
-        anyhow::bail!(
-            "--output must differ from the input model ({})",
-            input.display()
-        );
-    }
-    let data = jetpilot::policy::optimize::optimize(input, output)?;
-    let load = |p: &Path| {
-        OrtPolicy::load(
-            p,
-            &OrtOptions {
-                library: None,
-                providers: &[Provider::Cpu],
-                intra_threads: 0,
-                allow_spinning: false,
-                fallback_contract: &ModelContract::default(),
-            },
-        )
-    };
-    let check = (|| -> anyhow::Result<f32> {
-        let (mut a, mut b) = (load(input)?, load(output)?);
-        let s = a.contract().input_size as usize;
-        let mut worst = 0.0f32;
-        for k in 0..4u32 {
-            let x: Vec<f32> = (0..3 * s * s)
-                .map(|i| {
-                    ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(k * 97) % 1000) as f32
-                        / 250.0
-                        - 2.0
-                })
-                .collect();
-            let (u, v) = (a.infer(&x)?, b.infer(&x)?);
-            worst = worst.max((u[0] - v[0]).abs()).max((u[1] - v[1]).abs());
-        }
-        Ok(worst)
-    })();
-    let remove = || {
-        let _ = std::fs::remove_file(output);
-        let _ = std::fs::remove_file(&data);
-    };
-    match check {
-        Ok(d) if d <= 1e-3 => {
-            let bytes = |p: &Path| std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-            println!(
-                "wrote {} ({:.1} KB) and {} ({:.1} MB): outputs match the original to {d:.1e} on 4 test inputs; it loads only on this machine ({})",
-                output.display(),
-                bytes(output) as f64 / 1e3,
-                data.display(),
-                bytes(&data) as f64 / 1e6,
-                jetpilot::policy::optimize::optimized_for(output).unwrap_or_default()
-            );
-            Ok(ExitCode::SUCCESS)
-        }
-        Ok(d) => {
-            remove();
-            anyhow::bail!(
-                "the optimised model's outputs differ from the original's by {d:.3e} (more than 1e-3): not kept"
-            )
-        }
-        Err(e) => {
-            remove();
-            Err(e.context("checking the optimised model against the original"))
-        }
-    }
 }

@@ -10,7 +10,6 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
 use prost::Message;
 
@@ -147,11 +146,7 @@ pub fn optimize(input: &Path, output: &Path) -> Result<PathBuf> {
             ))
         })?;
     let tmp_model = tmp.path().join(name);
-    let builder = Session::builder(env)
-        .and_then(|b| {
-            b.with_optimization_level(GraphOptimizationLevel::Level3)
-                .map_err(Into::into)
-        })
+    let builder = runtime::session_builder(env, GraphOptimizationLevel::Level3, 0, false)
         .and_then(|b| b.with_optimized_model_path(&tmp_model).map_err(Into::into))
         .and_then(|b| {
             b.with_config_entry(

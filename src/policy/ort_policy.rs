@@ -83,20 +83,9 @@ impl OrtPolicy {
             }
             None => GraphOptimizationLevel::Level3,
         };
-        let mut builder = Session::builder(env)
-            .map_err(|e| PolicyError::Inference(e.to_string()))?
-            .with_optimization_level(level)
-            .map_err(|e| PolicyError::Inference(e.to_string()))?;
-        if opts.intra_threads > 0 {
-            builder = builder
-                .with_intra_threads(opts.intra_threads)
+        let mut builder =
+            runtime::session_builder(env, level, opts.intra_threads, opts.allow_spinning)
                 .map_err(|e| PolicyError::Inference(e.to_string()))?;
-        }
-        for (key, value) in spinning_entries(opts.allow_spinning) {
-            builder = builder
-                .with_config_entry(key, value)
-                .map_err(|e| PolicyError::Inference(e.to_string()))?;
-        }
         let mut in_use = None;
         for &p in opts.providers {
             let (available, dispatch) = match p {

@@ -167,6 +167,25 @@ pub fn environment(
     Ok((p.as_path(), e))
 }
 
+/// A session builder as jetpilot makes every session: this optimisation level, this many
+/// intra-op threads (0: ONNX Runtime decides), spinning as asked
+/// ([`super::ort_policy::spinning_entries`]). Execution providers are the caller's.
+pub fn session_builder(
+    env: &ort::environment::Environment,
+    level: ort::session::builder::GraphOptimizationLevel,
+    intra_threads: usize,
+    allow_spinning: bool,
+) -> ort::Result<ort::session::builder::SessionBuilder> {
+    let mut builder = ort::session::Session::builder(env)?.with_optimization_level(level)?;
+    if intra_threads > 0 {
+        builder = builder.with_intra_threads(intra_threads)?;
+    }
+    for (key, value) in super::ort_policy::spinning_entries(allow_spinning) {
+        builder = builder.with_config_entry(key, value)?;
+    }
+    Ok(builder)
+}
+
 /// The loaded library's version from its build info (`git-branch=rel-1.23.2`), else from
 /// its file name (`libonnxruntime.so.1.23.2`).
 pub fn ort_version(library: &Path) -> String {

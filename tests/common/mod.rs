@@ -194,6 +194,12 @@ impl embedded_hal::i2c::I2c for FlakyBus {
 
 /// A model on ONNX Runtime's CPU provider, one thread, the default fallback contract.
 pub fn load_ort(path: &Path) -> OrtPolicy {
+    try_load_ort(path)
+        .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
+}
+
+/// [`load_ort`] for tests that expect the load to be refused.
+pub fn try_load_ort(path: &Path) -> Result<OrtPolicy, PolicyError> {
     OrtPolicy::load(
         path,
         &OrtOptions {
@@ -204,5 +210,4 @@ pub fn load_ort(path: &Path) -> OrtPolicy {
             fallback_contract: &ModelContract::default(),
         },
     )
-    .expect("load model (is ONNX Runtime installed? scripts/install-onnxruntime.sh)")
 }

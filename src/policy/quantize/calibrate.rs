@@ -10,7 +10,6 @@ use ort::value::TensorRef;
 use super::params::{Histogram, MinMax, RangeMethod};
 use super::{Prepared, QuantizeError};
 use crate::policy::onnx::{ModelProto, encode_model};
-use crate::policy::ort_policy::spinning_entries;
 use crate::policy::runtime;
 
 /// Histogram bins per activation for percentile ranges.
@@ -36,16 +35,9 @@ impl Runner {
             reason: e.to_string(),
         };
         let (_, env) = runtime::environment(None)?;
-        let mut builder = Session::builder(env)
-            .map_err(|e| err(&e))?
-            .with_optimization_level(GraphOptimizationLevel::Level3)
-            .map_err(|e| err(&e))?;
-        if threads > 0 {
-            builder = builder.with_intra_threads(threads).map_err(|e| err(&e))?;
-        }
-        for (key, value) in spinning_entries(false) {
-            builder = builder.with_config_entry(key, value).map_err(|e| err(&e))?;
-        }
+        let mut builder =
+            runtime::session_builder(env, GraphOptimizationLevel::Level3, threads, false)
+                .map_err(|e| err(&e))?;
         let session = builder
             .commit_from_memory(&encode_model(model))
             .map_err(|e| err(&e))?;
@@ -209,11 +201,8 @@ pub fn optimized_op_counts(model: &ModelProto) -> Result<BTreeMap<String, usize>
     let (_, env) = runtime::environment(None)?;
     // Level 2 holds the QDQ fusions; level 3 adds layout changes specific to this CPU
     // (and a warning when saved).
-    let mut builder = Session::builder(env)
-        .map_err(|e| err(&e))?
-        .with_optimization_level(GraphOptimizationLevel::Level2)
-        .map_err(|e| err(&e))?
-        .with_optimized_model_path(&path)
+    let mut builder = runtime::session_builder(env, GraphOptimizationLevel::Level2, 0, false)
+        .and_then(|b| b.with_optimized_model_path(&path).map_err(Into::into))
         .map_err(|e| err(&e))?;
     let session = builder
         .commit_from_memory(&encode_model(model))
