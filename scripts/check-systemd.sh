@@ -61,6 +61,8 @@ cp systemd/csi-camera.conf "$ROOT/etc/systemd/system/jetpilot.service.d/csi-came
 verify "$UNIT + systemd/csi-camera.conf"
 cp systemd/gpio-motors.conf "$ROOT/etc/systemd/system/jetpilot.service.d/gpio-motors.conf"
 verify "$UNIT + systemd/csi-camera.conf + systemd/gpio-motors.conf"
+cp systemd/orin-gpu.conf "$ROOT/etc/systemd/system/jetpilot.service.d/orin-gpu.conf"
+verify "$UNIT + systemd/csi-camera.conf + systemd/gpio-motors.conf + systemd/orin-gpu.conf"
 
 cp systemd/jetpilot.sysusers.conf "$ROOT/usr/lib/sysusers.d/jetpilot.conf"
 if ! out=$(systemd-sysusers --root="$ROOT" --dry-run 2>&1) || grep -qiE 'fail|error|ignor' <<<"$out"; then

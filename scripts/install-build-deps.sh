@@ -5,7 +5,7 @@
 # (Mesa's lavapipe, a CPU Vulkan driver, with the Vulkan loader) for the tests of the
 # trainer's wgpu backend (`train --device wgpu:cpu`) on machines without a GPU; e2fsprogs,
 # gdisk and fakeroot for the SD-image installer and its tests; chromium for the web page's
-# browser test.
+# browser test; GNU time for the studies' peak RSS (scripts/size-study.sh).
 set -euo pipefail
 need=()
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
@@ -15,7 +15,7 @@ dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
 # `jetpilot image install` writes with e2fsprogs (debugfs, e2fsck, e2undo) and unpacks
 # downloads with unzip/xz; its tests build SD card images with gdisk's sgdisk and mkfs.ext4
 # under fakeroot, and zip one.
-for p in e2fsprogs gdisk fakeroot unzip zip xz-utils; do
+for p in e2fsprogs gdisk fakeroot unzip zip xz-utils time; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
 done
 # The web page's browser test (tests/web_browser.rs) drives Debian's Chromium headless

@@ -6,10 +6,12 @@
 #
 #   scripts/real-finetune.sh REALDATA INIT.onnx [OUT]
 #       REALDATA: labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat)
-#       INIT.onnx: the sim-pretrained xy model (e.g. .cache/s2r/matched/il/best.onnx)
+#       INIT.onnx: the sim-pretrained xy model (e.g. .cache/s2r/matched/il/best.onnx);
+#       "-" with STARTS=random
 #
-# Env: SIZES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
-# epochs = IMAGES / N, at least 10), BIN (skip the build). Writes OUT/finetune.csv and
+# Env: FRAMES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
+# epochs = IMAGES / N, at least 10), STARTS (default "sim random"), INPUT_SIZE (the
+# network's input, default 96), BIN (skip the build). Writes OUT/finetune.csv and
 # OUT/finetune.png (mean error against N, one line per start), OUT/<start>_<N>/.
 # The real frames are linked, not copied, into OUT.
 set -euo pipefail
@@ -18,9 +20,14 @@ cd "$(dirname "$0")/.."
 REAL=${1:-}
 INIT=${2:-}
 OUT=${3:-.cache/real-finetune}
-SIZES=${SIZES:-25 50 100 all}
+FRAMES=${FRAMES:-25 50 100 all}
 IMAGES=${IMAGES:-3000}
-if [ -z "$REAL" ] || [ ! -d "$REAL" ] || [ -z "$INIT" ] || [ ! -f "$INIT" ]; then
+STARTS=${STARTS:-sim random}
+INPUT_SIZE=${INPUT_SIZE:-96}
+if [ "$INIT" = - ] && [[ " $STARTS " != *" sim "* ]]; then
+  INIT=/dev/null
+fi
+if [ -z "$REAL" ] || [ ! -d "$REAL" ] || [ -z "$INIT" ] || [ ! -e "$INIT" ]; then
   echo "usage: scripts/real-finetune.sh REALDATA INIT.onnx [OUT]: REALDATA must be a folder of" >&2
   echo "labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat) and INIT.onnx a model;" >&2
   echo "got '${REAL}' and '${INIT}'" >&2
@@ -50,7 +57,7 @@ TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the 
 echo "real frames: $TOTAL, the earliest $TRAIN to train on, the rest scored"
 
 echo "frames,start,mean_px,baseline_px,epochs" > "$OUT/finetune.csv"
-for n in $SIZES; do
+for n in $FRAMES; do
   [ "$n" = all ] && n=$TRAIN
   d="$OUT/frames_$n"
   rm -rf "$d"
@@ -61,13 +68,13 @@ for n in $SIZES; do
   got=$(find "$d" -name '*.jpg' | wc -l)
   epochs=$(( IMAGES / got ))
   [ "$epochs" -lt 10 ] && epochs=10
-  for start in sim random; do
+  for start in $STARTS; do
     r="$OUT/${start}_$n"
     rm -rf "$r"
     init=()
     [ "$start" = sim ] && init=(--init "$INIT")
     echo "== $start start, $got real frames, $epochs epochs"
-    "$B" train il --config config/sim.toml --input-size 96 --head xy --epochs "$epochs" \
+    "$B" train il --config config/sim.toml --input-size "$INPUT_SIZE" --head xy --epochs "$epochs" \
       --seed 1 "${init[@]}" --data "$d" --out "$r" > "$r.log" 2>&1
     "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
       > "$r/score.txt"

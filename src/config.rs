@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::control::SteeringGains;
 use crate::hw::HatLayout;
 use crate::hw::motor_hat::{HatSettings, MotorTrim};
+use crate::policy::providers::{CudaOptions, GpuOptions, TensorrtOptions};
 pub use crate::policy::runtime::Provider;
 use crate::policy::{ChannelOrder, ModelContract, OutputKind};
 
@@ -231,6 +232,20 @@ pub struct RuntimeConfig {
     /// default). Off: they block at once, which costs a little latency per frame but no
     /// core between frames; `jetpilot bench` shows both.
     pub allow_spinning: bool,
+    /// The TensorRT provider (ONNX Runtime's GPU build: Jetson Orin, desktop GPUs).
+    pub tensorrt: TensorrtOptions,
+    /// The CUDA provider (the same builds).
+    pub cuda: CudaOptions,
+}
+
+impl RuntimeConfig {
+    /// Both GPU providers' settings, as sessions are built with them.
+    pub fn gpu(&self) -> GpuOptions {
+        GpuOptions {
+            tensorrt: self.tensorrt.clone(),
+            cuda: self.cuda.clone(),
+        }
+    }
 }
 
 impl Default for RuntimeConfig {
@@ -240,6 +255,8 @@ impl Default for RuntimeConfig {
             providers: vec![Provider::Cpu],
             intra_threads: 2,
             allow_spinning: false,
+            tensorrt: TensorrtOptions::default(),
+            cuda: CudaOptions::default(),
         }
     }
 }
@@ -542,6 +559,21 @@ impl Config {
             0,
             64,
         )?;
+        let (trt, cuda) = (&self.runtime.tensorrt, &self.runtime.cuda);
+        v.range_u(
+            "runtime.tensorrt.max_workspace_mib",
+            trt.max_workspace_mib.into(),
+            16,
+            65536,
+        )?;
+        v.range_u("runtime.tensorrt.device_id", trt.device_id.into(), 0, 15)?;
+        v.range_u("runtime.cuda.device_id", cuda.device_id.into(), 0, 15)?;
+        v.range_u(
+            "runtime.cuda.memory_limit_mib",
+            cuda.memory_limit_mib.into(),
+            0,
+            1 << 20,
+        )?;
         let c = &self.control;
         v.range("control.speed_gain", c.speed_gain, 0.0, 1.0)?;
         v.range("control.steering_gain", c.steering_gain, 0.0, 2.0)?;
@@ -662,6 +694,35 @@ mod tests {
         assert!(cfg.runtime.allow_spinning);
         let err = Config::parse("[runtime]\nallow_spinning = 1\n", "t.toml").unwrap_err();
         assert!(err.to_string().contains("runtime.allow_spinning"), "{err}");
+    }
+
+    #[test]
+    fn gpu_provider_sections_parse_and_bad_values_are_named() {
+        let text = "[runtime]\nproviders = [\"tensorrt\", \"cuda\", \"cpu\"]\n\n\
+                    [runtime.tensorrt]\nfp16 = false\ncache_dir = \"/var/cache/jp\"\n\
+                    max_workspace_mib = 512\n\n[runtime.cuda]\nmemory_limit_mib = 2048\n";
+        let cfg = Config::parse(text, "orin.toml").unwrap();
+        let gpu = cfg.runtime.gpu();
+        assert!(!gpu.tensorrt.fp16 && gpu.tensorrt.engine_cache);
+        assert_eq!(
+            gpu.tensorrt.cache_dir.as_deref(),
+            Some(Path::new("/var/cache/jp"))
+        );
+        assert_eq!(gpu.tensorrt.max_workspace_mib, 512);
+        assert_eq!((gpu.cuda.device_id, gpu.cuda.memory_limit_mib), (0, 2048));
+        // Defaults: fp16 and the engine cache on, a 1 GiB workspace.
+        let d = Config::default().runtime.gpu();
+        assert!(d.tensorrt.fp16 && d.tensorrt.engine_cache);
+        assert_eq!(d.tensorrt.max_workspace_mib, 1024);
+
+        let err = Config::parse("[runtime.tensorrt]\nmax_workspace_mib = 0\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("runtime.tensorrt.max_workspace_mib"), "{err}");
+        let err = Config::parse("[runtime.tensorrt]\nfp61 = true\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("fp61") && err.contains("line 2"), "{err}");
     }
 
     #[test]

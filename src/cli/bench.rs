@@ -460,6 +460,7 @@ fn bench_model(
             &OrtOptions {
                 library: None,
                 providers: &[Provider::Cpu],
+                gpu: jetpilot::policy::providers::GpuOptions::default(),
                 intra_threads: args.threads,
                 allow_spinning,
                 fallback_contract: &fallback,

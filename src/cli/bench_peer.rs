@@ -48,6 +48,7 @@ pub fn serve(
         &OrtOptions {
             library: None,
             providers: &[Provider::Cpu],
+            gpu: jetpilot::policy::providers::GpuOptions::default(),
             intra_threads: threads,
             allow_spinning: spinning,
             fallback_contract: &fallback,

@@ -24,6 +24,7 @@ pub fn main(input: &Path, output: &Path) -> anyhow::Result<ExitCode> {
             &OrtOptions {
                 library: None,
                 providers: &[Provider::Cpu],
+                gpu: jetpilot::policy::providers::GpuOptions::default(),
                 intra_threads: 0,
                 allow_spinning: false,
                 fallback_contract: &ModelContract::default(),

@@ -80,6 +80,7 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         &OrtOptions {
             library: None,
             providers: &[Provider::Cpu],
+            gpu: jetpilot::policy::providers::GpuOptions::default(),
             intra_threads: args.threads,
             allow_spinning: false,
             fallback_contract: &fallback,

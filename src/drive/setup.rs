@@ -48,6 +48,7 @@ pub fn load_policy(cfg: &Config, model: Option<&Path>) -> Result<OrtPolicy, Poli
         &OrtOptions {
             library: cfg.runtime.library.as_deref(),
             providers: &cfg.runtime.providers,
+            gpu: cfg.runtime.gpu(),
             intra_threads: cfg.runtime.intra_threads,
             allow_spinning: cfg.runtime.allow_spinning,
             fallback_contract: &fallback,

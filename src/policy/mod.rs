@@ -14,6 +14,7 @@ pub mod onnx;
 pub mod optimize;
 pub mod ort_policy;
 pub mod preprocess;
+pub mod providers;
 pub mod quantize;
 pub mod runtime;
 

@@ -10,12 +10,12 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use ort::ep;
 use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 
 use super::optimize;
+use super::providers::{self, GpuOptions};
 use super::runtime::{self, Provider};
 use super::{ModelContract, Policy, PolicyError, Result};
 
@@ -26,6 +26,8 @@ pub struct OrtOptions<'a> {
     pub library: Option<&'a Path>,
     /// Execution providers in order of preference.
     pub providers: &'a [Provider],
+    /// The GPU providers' settings (`[runtime.tensorrt]`, `[runtime.cuda]`).
+    pub gpu: GpuOptions,
     /// Threads inside one operator (0: ONNX Runtime decides).
     pub intra_threads: usize,
     /// Let the worker threads spin-wait between runs (ONNX Runtime's own default); off,
@@ -88,18 +90,8 @@ impl OrtPolicy {
                 .map_err(|e| PolicyError::Inference(e.to_string()))?;
         let mut in_use = None;
         for &p in opts.providers {
-            let (available, dispatch) = match p {
-                Provider::Tensorrt => (
-                    <ep::TensorRT as ep::ExecutionProvider>::is_available(),
-                    ep::TensorRT::default().build().error_on_failure(),
-                ),
-                Provider::Cuda => (
-                    <ep::CUDA as ep::ExecutionProvider>::is_available(),
-                    ep::CUDA::default().build().error_on_failure(),
-                ),
-                Provider::Cpu => (Ok(true), ep::CPU::default().build().error_on_failure()),
-            };
-            if !matches!(available, Ok(true)) {
+            let (available, dispatch) = providers::dispatch(p, &opts.gpu);
+            if !available {
                 tracing::warn!(
                     provider = p.as_str(),
                     "execution provider not in this ONNX Runtime build; trying the next"

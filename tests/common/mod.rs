@@ -205,6 +205,7 @@ pub fn try_load_ort(path: &Path) -> Result<OrtPolicy, PolicyError> {
         &OrtOptions {
             library: None,
             providers: &[Provider::Cpu],
+            gpu: jetpilot::policy::providers::GpuOptions::default(),
             intra_threads: 1,
             allow_spinning: false,
             fallback_contract: &ModelContract::default(),
