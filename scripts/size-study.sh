@@ -13,7 +13,8 @@
 #     paced at 15 fps), run twice, the second time in the reverse order;
 #   - memory: the daemon's peak RSS (`/usr/bin/time -f %M jetpilot -q run --duration 4`)
 #     on config/demo.toml with each model, three runs each.
-# MATCHED=1 also quantizes the sim-to-real "matched" xy policy (scripts/sim-to-real.sh,
+# Only the imitation models are benched and measured for memory (an xy model of the same
+# size costs the same). MATCHED=1 also quantizes the sim-to-real "matched" xy policy (scripts/sim-to-real.sh,
 # 96x96), calibrated on the earlier 80 % of the real frames, and scores both on the rest.
 #
 #   scripts/size-study.sh [OUT] [REALDATA]     (default OUT: .cache/sizes)
@@ -38,7 +39,7 @@ fi
 
 ORT_LIB=$(scripts/install-onnxruntime.sh)
 export ORT_DYLIB_PATH="$ORT_LIB"
-scripts/install-build-deps.sh   # GNU time for the peak RSS, among others
+[ -x /usr/bin/time ] || scripts/install-build-deps.sh   # GNU time, for the peak RSS
 if [ -n "${BIN:-}" ]; then
   B=$BIN
 else
@@ -57,16 +58,18 @@ models=()
 for s in $SIZES; do
   d="$OUT/il_$s"
   echo "== $s x $s"
-  if [ ! -f "$d/int8.onnx" ]; then
+  if [ ! -f "$d/best.onnx" ] || [ ! -f "$OUT/quantize_$s.log" ]; then
     resume=()
     [ -f "$d/il_state.json" ] && resume=(--resume)
     $B train il --config "$CFG" --input-size "$s" --head speed-steering --epochs "$EPOCHS" \
-      --seed 0 --data "$OUT/demos" --out "$d" "${resume[@]}" > "$OUT/il_$s.log" 2>&1
+      --seed 0 --data "$OUT/demos" --out "$d" "${resume[@]}" >> "$OUT/il_$s.log" 2>&1
+    # A refusal (--tolerance) is reported, and the study goes on without that int8 model.
     $B model quantize "$d/best.onnx" -o "$d/int8.onnx" --calibration "$OUT/demos" \
-      > "$OUT/quantize_$s.log"
+      > "$OUT/quantize_$s.log" 2>&1 || echo "int8 $s: refused or failed, see $OUT/quantize_$s.log"
   fi
-  grep -E 'held-out|QLinearConv' "$OUT/quantize_$s.log" || true
+  grep -E 'held-out|QLinearConv|refused' "$OUT/quantize_$s.log" || true
   for m in best int8; do
+    [ -f "$d/$m.onnx" ] || continue
     models+=("$d/$m.onnx")
     if [ ! -f "$OUT/eval_${s}_$m.json" ]; then
       $B -q eval --config "$CFG" --model "$d/$m.onnx" --seconds "$EVAL_S" \
@@ -78,17 +81,23 @@ for s in $SIZES; do
   done
   if [ -n "$REAL" ]; then
     r="$OUT/real_$s"
-    if [ ! -f "$r/random_int8.onnx" ]; then
+    if ! ls "$r"/random_*/score.txt > /dev/null 2>&1; then
       FRAMES=all STARTS=random INPUT_SIZE=$s BIN=$B scripts/real-finetune.sh "$REAL" - "$r" \
         > "$OUT/real_$s.log" 2>&1
       rm -f "$r"/random_*/il_optim.bpk
+    fi
+    if [ ! -f "$r/score_int8.txt" ]; then
       m=$(ls -d "$r"/random_*/ | head -1)
-      $B model quantize "$m/best.onnx" -o "$r/random_int8.onnx" --calibration "$REAL" \
-        --holdout 0.2 > "$OUT/quantize_real_$s.log"
-      $B -q score --model "$r/random_int8.onnx" --data "$REAL" --split-by-time 0.2 \
-        --out "$r/score_int8" > "$r/score_int8.txt"
+      if $B model quantize "$m/best.onnx" -o "$r/random_int8.onnx" --calibration "$REAL" \
+        --holdout 0.2 > "$OUT/quantize_real_$s.log" 2>&1; then
+        $B -q score --model "$r/random_int8.onnx" --data "$REAL" --split-by-time 0.2 \
+          --out "$r/score_int8" > "$r/score_int8.txt"
+      else
+        echo "real int8 $s: refused or failed, see $OUT/quantize_real_$s.log"
+      fi
     fi
     for f in "$r"/random_*/score.txt "$r/score_int8.txt"; do
+      [ -f "$f" ] || continue
       echo "real $s $f: $(awk '$1 == "model" && $2 == "mean"' "$f") $(grep 'model / baseline' "$f")"
     done
   fi
@@ -129,9 +138,12 @@ for m in "${models[@]}"; do
     s|^print_commands = .*|print_commands = false|" config/demo.toml > "$OUT/demo_rss.toml"
   kib=()
   for _ in 1 2 3; do
-    /usr/bin/time -f %M -o "$OUT/rss.txt" $B -q run --config "$OUT/demo_rss.toml" --duration 4 \
-      > "$OUT/rss_run.log" 2>&1
-    kib+=("$(tail -1 "$OUT/rss.txt")")
+    if /usr/bin/time -f %M -o "$OUT/rss.txt" $B -q run --config "$OUT/demo_rss.toml" \
+      --duration 4 > "$OUT/rss_run.log" 2>&1; then
+      kib+=("$(tail -1 "$OUT/rss.txt")")
+    else
+      kib+=("failed($(tail -1 "$OUT/rss_run.log"))")
+    fi
   done
   echo "rss $m: ${kib[*]} KiB"
 done

@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use ort::session::Session;
-use ort::session::builder::GraphOptimizationLevel;
+use ort::session::builder::{GraphOptimizationLevel, SessionBuilder};
 use ort::value::TensorRef;
 
 use super::optimize;
@@ -85,36 +85,30 @@ impl OrtPolicy {
             }
             None => GraphOptimizationLevel::Level3,
         };
-        let mut builder =
-            runtime::session_builder(env, level, opts.intra_threads, opts.allow_spinning)
-                .map_err(|e| PolicyError::Inference(e.to_string()))?;
-        let mut in_use = None;
-        for &p in opts.providers {
-            let (available, dispatch) = providers::dispatch(p, &opts.gpu);
-            if !available {
-                tracing::warn!(
-                    provider = p.as_str(),
-                    "execution provider not in this ONNX Runtime build; trying the next"
-                );
-                continue;
-            }
-            match builder.with_execution_providers([dispatch]) {
-                Ok(b) => {
-                    builder = b;
-                    in_use = Some(p);
-                    break;
-                }
-                Err(e) => {
-                    tracing::warn!(provider = p.as_str(), error = %e, "execution provider failed to register; trying the next");
-                    builder = e.recover();
-                }
-            }
-        }
+        let make = |list: &[Provider]| {
+            let builder =
+                runtime::session_builder(env, level, opts.intra_threads, opts.allow_spinning)
+                    .map_err(|e| PolicyError::Inference(e.to_string()))?;
+            Ok::<_, PolicyError>(register(builder, list, &opts.gpu, path))
+        };
+        let (mut builder, registered) = make(opts.providers)?;
         // ONNX Runtime always has its CPU provider underneath.
-        let provider = in_use.unwrap_or(Provider::Cpu);
-        let session = builder
-            .commit_from_file(path)
-            .map_err(|e| model_err(format!("ONNX Runtime cannot load it: {e}")))?;
+        let mut provider = registered.first().copied().unwrap_or(Provider::Cpu);
+        let session = match builder.commit_from_file(path) {
+            Ok(s) => s,
+            // A GPU provider that registered can still fail when the session is made (no
+            // device, a sandbox without the GPU's devices, out of memory): drive on the
+            // CPU rather than not at all.
+            Err(e) if provider != Provider::Cpu => {
+                tracing::warn!(provider = provider.as_str(), error = %e, "the session could not be made with the GPU providers; loading the model on the CPU");
+                provider = Provider::Cpu;
+                make(&[Provider::Cpu])?
+                    .0
+                    .commit_from_file(path)
+                    .map_err(|e| model_err(format!("ONNX Runtime cannot load it: {e}")))?
+            }
+            Err(e) => return Err(model_err(format!("ONNX Runtime cannot load it: {e}"))),
+        };
 
         let meta = read_metadata(&session);
         let (contract, contract_source) = match ModelContract::from_metadata(&meta) {
@@ -163,6 +157,39 @@ pub fn spinning_entries(allow: bool) -> [(&'static str, &'static str); 2] {
         ("session.intra_op.allow_spinning", value),
         ("session.inter_op.allow_spinning", value),
     ]
+}
+
+/// Registers each of `list` that this ONNX Runtime library has, in order: ONNX Runtime
+/// gives every node to the first provider that can run it (TensorRT, then CUDA for what
+/// TensorRT leaves, then the CPU). Returns the builder and the providers registered.
+fn register(
+    mut builder: SessionBuilder,
+    list: &[Provider],
+    gpu: &GpuOptions,
+    model: &Path,
+) -> (SessionBuilder, Vec<Provider>) {
+    let mut registered = Vec::new();
+    for &p in list {
+        let (available, dispatch) = providers::dispatch(p, gpu, model);
+        if !available {
+            tracing::warn!(
+                provider = p.as_str(),
+                "execution provider not in this ONNX Runtime build; trying the next"
+            );
+            continue;
+        }
+        match builder.with_execution_providers([dispatch]) {
+            Ok(b) => {
+                builder = b;
+                registered.push(p);
+            }
+            Err(e) => {
+                tracing::warn!(provider = p.as_str(), error = %e, "execution provider failed to register; trying the next");
+                builder = e.recover();
+            }
+        }
+    }
+    (builder, registered)
 }
 
 fn read_metadata(session: &Session) -> BTreeMap<String, String> {

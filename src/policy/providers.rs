@@ -8,11 +8,17 @@
 //! the engine (and TensorRT's timing cache) on disk, so later starts take seconds. The
 //! cache folder is, unless set: `$CACHE_DIRECTORY/tensorrt` (systemd's `CacheDirectory=`,
 //! see `systemd/orin-gpu.conf`), else `${XDG_CACHE_HOME:-~/.cache}/jetpilot/tensorrt`.
+//!
+//! ONNX Runtime names a cached engine after the model's file name, its tensor names and the
+//! library versions, not its weights: a model retrained to the same `best.onnx` would run
+//! on the old engine. So each model's engines go in a subfolder named after the SHA-256
+//! of its bytes (and of its external weights, if any); the timing cache is shared.
 
 use std::path::{Path, PathBuf};
 
 use ort::ep::{self, ArbitrarilyConfigurableExecutionProvider, ExecutionProviderDispatch};
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use super::runtime::Provider;
 
@@ -68,9 +74,19 @@ fn flag(on: bool) -> String {
     if on { "1" } else { "0" }.to_string()
 }
 
+/// Where TensorRT keeps one model's engines and the shared timing cache.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TensorrtCache {
+    pub engines: PathBuf,
+    pub timing: PathBuf,
+}
+
 /// The TensorRT provider's options under ONNX Runtime's own names
-/// (`OrtTensorRTProviderOptionsV2`), the cache folder given when the cache is on.
-pub fn tensorrt_entries(o: &TensorrtOptions, cache: Option<&Path>) -> Vec<(&'static str, String)> {
+/// (`OrtTensorRTProviderOptionsV2`), the cache's folders given when the cache is on.
+pub fn tensorrt_entries(
+    o: &TensorrtOptions,
+    cache: Option<&TensorrtCache>,
+) -> Vec<(&'static str, String)> {
     let mut entries = vec![
         ("device_id", o.device_id.to_string()),
         (
@@ -79,13 +95,12 @@ pub fn tensorrt_entries(o: &TensorrtOptions, cache: Option<&Path>) -> Vec<(&'sta
         ),
         ("trt_fp16_enable", flag(o.fp16)),
     ];
-    if let Some(dir) = cache {
-        let dir = dir.display().to_string();
+    if let Some(c) = cache {
         entries.extend([
             ("trt_engine_cache_enable", flag(true)),
-            ("trt_engine_cache_path", dir.clone()),
+            ("trt_engine_cache_path", c.engines.display().to_string()),
             ("trt_timing_cache_enable", flag(true)),
-            ("trt_timing_cache_path", dir),
+            ("trt_timing_cache_path", c.timing.display().to_string()),
         ]);
     }
     entries
@@ -121,10 +136,26 @@ pub fn default_cache_dir(
         .map(|d| d.join("jetpilot/tensorrt"))
 }
 
-/// The engine cache's folder, created; `None` (with a warning naming the folder) when the
-/// cache is off, no folder can be named, or it cannot be created: the provider then builds
-/// the engine at every start.
-fn engine_cache(o: &TensorrtOptions) -> Option<PathBuf> {
+/// The SHA-256 of a model's bytes, and of its external weights file (`FILE.data`) if there
+/// is one, in hex: the name of its engines' folder.
+pub fn model_key(model: &Path) -> std::io::Result<String> {
+    let mut hash = Sha256::new();
+    let mut data = model.as_os_str().to_owned();
+    data.push(".data");
+    for (i, file) in [model, Path::new(&data)].into_iter().enumerate() {
+        let mut f = match std::fs::File::open(file) {
+            Err(e) if i > 0 && e.kind() == std::io::ErrorKind::NotFound => continue,
+            other => other?,
+        };
+        std::io::copy(&mut f, &mut hash)?;
+    }
+    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// The engine cache's folders for `model`, created; `None` (with a warning naming the
+/// folder) when the cache is off, no folder can be named, or it cannot be created or the
+/// model read: the provider then builds the engine at every start.
+fn engine_cache(o: &TensorrtOptions, model: &Path) -> Option<TensorrtCache> {
     if !o.engine_cache {
         return None;
     }
@@ -142,19 +173,30 @@ fn engine_cache(o: &TensorrtOptions) -> Option<PathBuf> {
         );
         return None;
     };
-    match std::fs::create_dir_all(&dir) {
-        Ok(()) => Some(dir),
+    let key = match model_key(model) {
+        Ok(k) => k,
         Err(e) => {
-            tracing::warn!(folder = %dir.display(), error = %e, "runtime.tensorrt.cache_dir cannot be created; TensorRT builds its engine at every start");
+            tracing::warn!(model = %model.display(), error = %e, "cannot read the model to name its engine cache; TensorRT builds its engine at every start");
+            return None;
+        }
+    };
+    let engines = dir.join(key);
+    match std::fs::create_dir_all(&engines) {
+        Ok(()) => Some(TensorrtCache {
+            engines,
+            timing: dir,
+        }),
+        Err(e) => {
+            tracing::warn!(folder = %engines.display(), error = %e, "runtime.tensorrt.cache_dir cannot be created; TensorRT builds its engine at every start");
             None
         }
     }
 }
 
-/// Whether this ONNX Runtime library has provider `p`, and its registration (failing
-/// loudly, so the caller can log it and try the next). The TensorRT cache folder is made
-/// only when the library has that provider.
-pub fn dispatch(p: Provider, gpu: &GpuOptions) -> (bool, ExecutionProviderDispatch) {
+/// Whether this ONNX Runtime library has provider `p`, and its registration for `model`
+/// (failing loudly, so the caller can log it and try the next). The TensorRT cache folder
+/// is made only when the library has that provider.
+pub fn dispatch(p: Provider, gpu: &GpuOptions, model: &Path) -> (bool, ExecutionProviderDispatch) {
     match p {
         Provider::Tensorrt => {
             let available = matches!(
@@ -162,11 +204,11 @@ pub fn dispatch(p: Provider, gpu: &GpuOptions) -> (bool, ExecutionProviderDispat
                 Ok(true)
             );
             let cache = if available {
-                engine_cache(&gpu.tensorrt)
+                engine_cache(&gpu.tensorrt, model)
             } else {
                 None
             };
-            let ep = tensorrt_entries(&gpu.tensorrt, cache.as_deref())
+            let ep = tensorrt_entries(&gpu.tensorrt, cache.as_ref())
                 .into_iter()
                 .fold(ep::TensorRT::default(), |ep, (k, v)| {
                     ep.with_arbitrary_config(k, v)
@@ -206,10 +248,11 @@ mod tests {
     #[test]
     fn tensorrt_defaults_are_fp16_with_a_1_gib_workspace_and_the_cache_in_the_folder() {
         let o = TensorrtOptions::default();
-        let got = strings(tensorrt_entries(
-            &o,
-            Some(Path::new("/var/cache/jetpilot/tensorrt")),
-        ));
+        let cache = TensorrtCache {
+            engines: PathBuf::from("/var/cache/jetpilot/tensorrt/0a1b"),
+            timing: PathBuf::from("/var/cache/jetpilot/tensorrt"),
+        };
+        let got = strings(tensorrt_entries(&o, Some(&cache)));
         assert_eq!(
             got,
             pairs(&[
@@ -217,7 +260,7 @@ mod tests {
                 ("trt_max_workspace_size", "1073741824"),
                 ("trt_fp16_enable", "1"),
                 ("trt_engine_cache_enable", "1"),
-                ("trt_engine_cache_path", "/var/cache/jetpilot/tensorrt"),
+                ("trt_engine_cache_path", "/var/cache/jetpilot/tensorrt/0a1b"),
                 ("trt_timing_cache_enable", "1"),
                 ("trt_timing_cache_path", "/var/cache/jetpilot/tensorrt"),
             ])
@@ -281,6 +324,33 @@ mod tests {
     }
 
     #[test]
+    fn engines_are_keyed_by_the_model_bytes_and_its_external_weights() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("best.onnx");
+        std::fs::write(&model, b"abc").unwrap();
+        // SHA-256("abc"), the FIPS 180-2 example.
+        assert_eq!(
+            model_key(&model).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        // The same name with other weights (a retrained best.onnx) gets another folder.
+        std::fs::write(&model, b"abd").unwrap();
+        assert_ne!(
+            model_key(&model).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        // External weights count: "ab" + "c" hashes as "abc".
+        std::fs::write(&model, b"ab").unwrap();
+        std::fs::write(dir.path().join("best.onnx.data"), b"c").unwrap();
+        assert_eq!(
+            model_key(&model).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        let err = model_key(&dir.path().join("gone.onnx")).unwrap_err();
+        assert_eq!(err.kind(), std::io::ErrorKind::NotFound);
+    }
+
+    #[test]
     fn the_cpu_library_has_no_gpu_provider_and_makes_no_cache_folder() {
         // The CPU wheel's library (scripts/install-onnxruntime.sh) has neither GPU provider.
         super::super::runtime::environment(None)
@@ -293,9 +363,11 @@ mod tests {
             },
             cuda: CudaOptions::default(),
         };
-        assert!(!dispatch(Provider::Tensorrt, &gpu).0);
-        assert!(!dispatch(Provider::Cuda, &gpu).0);
-        assert!(dispatch(Provider::Cpu, &gpu).0);
+        let model = dir.path().join("m.onnx");
+        std::fs::write(&model, b"model").unwrap();
+        assert!(!dispatch(Provider::Tensorrt, &gpu, &model).0);
+        assert!(!dispatch(Provider::Cuda, &gpu, &model).0);
+        assert!(dispatch(Provider::Cpu, &gpu, &model).0);
         assert!(!dir.path().join("trt").exists());
     }
 }
