@@ -7,7 +7,7 @@
 mod common;
 
 use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::providers::{GpuOptions, TensorrtOptions};
+use jetpilot::policy::providers::{self, CudaOptions, GpuOptions, TensorrtOptions};
 use jetpilot::policy::runtime::Provider;
 use jetpilot::policy::{ModelContract, OrtPolicy, Policy};
 
@@ -42,4 +42,25 @@ fn gpu_providers_missing_from_the_library_fall_back_to_the_cpu() {
         .map(|i| (i % 13) as f32 / 6.0 - 1.0)
         .collect();
     assert_eq!(gpu.infer(&x).unwrap(), cpu.infer(&x).unwrap());
+}
+
+#[test]
+fn the_cpu_library_has_no_gpu_provider_and_makes_no_cache_folder() {
+    // The CPU wheel's library (scripts/install-onnxruntime.sh) has neither GPU provider.
+    jetpilot::policy::runtime::environment(None)
+        .expect("the ONNX Runtime library (scripts/install-onnxruntime.sh)");
+    let dir = tempfile::tempdir().unwrap();
+    let gpu = GpuOptions {
+        tensorrt: TensorrtOptions {
+            cache_dir: Some(dir.path().join("trt")),
+            ..TensorrtOptions::default()
+        },
+        cuda: CudaOptions::default(),
+    };
+    let model = dir.path().join("m.onnx");
+    std::fs::write(&model, b"model").unwrap();
+    assert!(!providers::dispatch(Provider::Tensorrt, &gpu, &model).0);
+    assert!(!providers::dispatch(Provider::Cuda, &gpu, &model).0);
+    assert!(providers::dispatch(Provider::Cpu, &gpu, &model).0);
+    assert!(!dir.path().join("trt").exists());
 }

@@ -349,25 +349,4 @@ mod tests {
         let err = model_key(&dir.path().join("gone.onnx")).unwrap_err();
         assert_eq!(err.kind(), std::io::ErrorKind::NotFound);
     }
-
-    #[test]
-    fn the_cpu_library_has_no_gpu_provider_and_makes_no_cache_folder() {
-        // The CPU wheel's library (scripts/install-onnxruntime.sh) has neither GPU provider.
-        super::super::runtime::environment(None)
-            .expect("the ONNX Runtime library (scripts/install-onnxruntime.sh)");
-        let dir = tempfile::tempdir().unwrap();
-        let gpu = GpuOptions {
-            tensorrt: TensorrtOptions {
-                cache_dir: Some(dir.path().join("trt")),
-                ..TensorrtOptions::default()
-            },
-            cuda: CudaOptions::default(),
-        };
-        let model = dir.path().join("m.onnx");
-        std::fs::write(&model, b"model").unwrap();
-        assert!(!dispatch(Provider::Tensorrt, &gpu, &model).0);
-        assert!(!dispatch(Provider::Cuda, &gpu, &model).0);
-        assert!(dispatch(Provider::Cpu, &gpu, &model).0);
-        assert!(!dir.path().join("trt").exists());
-    }
 }
