@@ -32,7 +32,7 @@ use jetpilot::hw::motor_hat::HatSettings;
 use jetpilot::hw::{HatLayout, MotorHat, MotorOutput};
 use jetpilot::policy::onnx::{self, Resnet18Weights};
 use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::{self, Provider};
+use jetpilot::policy::runtime;
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
 use ort::environment::Environment;
 use ort::session::builder::GraphOptimizationLevel;
@@ -457,14 +457,7 @@ fn bench_model(
     let load = |allow_spinning| {
         OrtPolicy::load(
             &model.path,
-            &OrtOptions {
-                library: None,
-                providers: &[Provider::Cpu],
-                gpu: jetpilot::policy::providers::GpuOptions::default(),
-                intra_threads: args.threads,
-                allow_spinning,
-                fallback_contract: &fallback,
-            },
+            &OrtOptions::cpu(args.threads, allow_spinning, &fallback),
         )
     };
     let mut policy = load(false)?;

@@ -28,7 +28,6 @@ use jetpilot::config::{RuntimeConfig, SafetyConfig};
 use jetpilot::control::{SteeringGains, SteeringLaw};
 use jetpilot::hw::MotorOutput;
 use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
 use jetpilot::policy::{ModelContract, OrtPolicy, Policy, Preprocessor};
 
 use super::bench::{FRAME_H, FRAME_W, null_hat};
@@ -43,17 +42,7 @@ pub fn serve(
 ) -> anyhow::Result<ExitCode> {
     let fallback = ModelContract::default();
     let spinning = RuntimeConfig::default().allow_spinning;
-    let mut policy = OrtPolicy::load(
-        model,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            gpu: jetpilot::policy::providers::GpuOptions::default(),
-            intra_threads: threads,
-            allow_spinning: spinning,
-            fallback_contract: &fallback,
-        },
-    )?;
+    let mut policy = OrtPolicy::load(model, &OrtOptions::cpu(threads, spinning, &fallback))?;
     let contract = policy.contract().clone();
     let mut pre = Preprocessor::new(&contract);
     let gains = SteeringGains {

@@ -5,7 +5,6 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
 use jetpilot::policy::{ModelContract, OrtPolicy, Policy};
 
 /// The optimised copy, checked against the original on deterministic inputs before it is
@@ -18,19 +17,7 @@ pub fn main(input: &Path, output: &Path) -> anyhow::Result<ExitCode> {
         );
     }
     let data = jetpilot::policy::optimize::optimize(input, output)?;
-    let load = |p: &Path| {
-        OrtPolicy::load(
-            p,
-            &OrtOptions {
-                library: None,
-                providers: &[Provider::Cpu],
-                gpu: jetpilot::policy::providers::GpuOptions::default(),
-                intra_threads: 0,
-                allow_spinning: false,
-                fallback_contract: &ModelContract::default(),
-            },
-        )
-    };
+    let load = |p: &Path| OrtPolicy::load(p, &OrtOptions::cpu(0, false, &ModelContract::default()));
     let check = (|| -> anyhow::Result<f32> {
         let (mut a, mut b) = (load(input)?, load(output)?);
         let s = a.contract().input_size as usize;

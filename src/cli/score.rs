@@ -12,7 +12,6 @@ use jetpilot::control::SteeringGains;
 use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
 use jetpilot::policy::contract::ChannelOrder;
 use jetpilot::policy::ort_policy::{ContractSource, OrtOptions};
-use jetpilot::policy::runtime::Provider;
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
 use jetpilot::score::{self, Scorecard, sheet};
 
@@ -77,14 +76,7 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
     };
     let mut policy = OrtPolicy::load(
         &args.model,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            gpu: jetpilot::policy::providers::GpuOptions::default(),
-            intra_threads: args.threads,
-            allow_spinning: false,
-            fallback_contract: &fallback,
-        },
+        &OrtOptions::cpu(args.threads, false, &fallback),
     )?;
     let contract = policy.contract().clone();
     println!(

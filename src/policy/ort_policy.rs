@@ -37,6 +37,25 @@ pub struct OrtOptions<'a> {
     pub fallback_contract: &'a ModelContract,
 }
 
+impl<'a> OrtOptions<'a> {
+    /// The CPU provider only, the library found as usual: how the tools that are not the
+    /// daemon (`score`, `bench`, `model optimize`, tests) load a model.
+    pub fn cpu(
+        intra_threads: usize,
+        allow_spinning: bool,
+        fallback_contract: &'a ModelContract,
+    ) -> Self {
+        Self {
+            library: None,
+            providers: &[Provider::Cpu],
+            gpu: GpuOptions::default(),
+            intra_threads,
+            allow_spinning,
+            fallback_contract,
+        }
+    }
+}
+
 /// Where a model's contract came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ContractSource {

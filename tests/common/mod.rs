@@ -13,7 +13,6 @@ use jetpilot::camera::{CameraError, Frame, FrameSource};
 use jetpilot::clock::Clock;
 use jetpilot::policy::onnx::{self, Resnet18Weights};
 use jetpilot::policy::ort_policy::OrtOptions;
-use jetpilot::policy::runtime::Provider;
 use jetpilot::policy::{ModelContract, OrtPolicy, Policy, PolicyError};
 
 /// A random ResNet-18 at `size` x `size` with our contract in its metadata.
@@ -200,15 +199,5 @@ pub fn load_ort(path: &Path) -> OrtPolicy {
 
 /// [`load_ort`] for tests that expect the load to be refused.
 pub fn try_load_ort(path: &Path) -> Result<OrtPolicy, PolicyError> {
-    OrtPolicy::load(
-        path,
-        &OrtOptions {
-            library: None,
-            providers: &[Provider::Cpu],
-            gpu: jetpilot::policy::providers::GpuOptions::default(),
-            intra_threads: 1,
-            allow_spinning: false,
-            fallback_contract: &ModelContract::default(),
-        },
-    )
+    OrtPolicy::load(path, &OrtOptions::cpu(1, false, &ModelContract::default()))
 }
