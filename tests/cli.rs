@@ -201,8 +201,25 @@ fn foreign_model(dir: &Path, size: u32, outputs: usize) -> PathBuf {
 #[test]
 fn wrong_input_shape_names_expected_and_found() {
     let dir = tempfile::tempdir().unwrap();
-    // The config's contract says 224; the graph takes 96.
-    let out = dry_run(dir.path(), &foreign_model(dir.path(), 96, 2), "");
+    // The model's metadata says 224; its graph takes 96.
+    let mut m = onnx::resnet18_model(
+        96,
+        &Resnet18Weights::random(2, 0),
+        &ModelContract {
+            input_size: 96,
+            ..ModelContract::default()
+        },
+        "t",
+    )
+    .unwrap();
+    for p in &mut m.metadata_props {
+        if p.key == jetpilot::policy::contract::META_INPUT_SIZE {
+            p.value = "224".into();
+        }
+    }
+    let model = dir.path().join("mislabelled.onnx");
+    onnx::write_model(&model, &m).unwrap();
+    let out = dry_run(dir.path(), &model, "");
     assert!(!out.status.success());
     let err = stderr(&out);
     assert!(err.contains("input `input` has shape [1,3,96,96]"), "{err}");
@@ -248,6 +265,18 @@ fn a_model_without_metadata_runs_with_the_config_contract() {
     assert!(text.contains("resize to 64x64, bgr planes"), "{text}");
     let info = run(&["model", "info", model.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&info.stdout).contains("none in the file"));
+}
+
+#[test]
+fn a_model_without_metadata_keeps_its_fixed_input_size() {
+    // JetBot's notebook exports have a fixed input and no metadata: the graph's size wins over
+    // the config's model.input_size (here the default 224), the other keys stay the config's.
+    let dir = tempfile::tempdir().unwrap();
+    let model = foreign_model(dir.path(), 96, 2);
+    let out = dry_run(dir.path(), &model, "");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("resize to 96x96, rgb planes"), "{text}");
 }
 
 #[test]

@@ -144,7 +144,7 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
             match s.contract() {
                 Ok(Some(c)) => println!("  contract   {c} (from the model's metadata)"),
                 Ok(None) => println!(
-                    "  contract   none in the file: `jetpilot run` uses the config's [model] keys (input_size, channel_order, mean, std, output)"
+                    "  contract   none in the file: `jetpilot run` uses the config's [model] keys (channel_order, mean, std, output; input_size only where the input above is not a fixed [n,3,S,S])"
                 ),
                 Err(e) => println!("  contract   INVALID: {e}"),
             }

@@ -119,6 +119,22 @@ impl ModelContract {
         ]
     }
 
+    /// The contract for a model without jetpilot metadata whose graph input has the dims
+    /// `dims` (ONNX order `[n, c, h, w]`, a negative value for a size fixed only at run
+    /// time). A fixed square image input `[n, 3, S, S]` with S from 32 to 1024 is the model's
+    /// own statement of its size, so `input_size` becomes S; every other key, and the size
+    /// of a model whose input is dynamic, comes from `self` (the config's `[model]` keys).
+    pub fn for_unlabelled_input(&self, dims: &[i64]) -> Self {
+        let mut c = self.clone();
+        if let [_, 3, h, w] = dims
+            && h == w
+            && (32..=1024).contains(h)
+        {
+            c.input_size = *h as u32;
+        }
+        c
+    }
+
     /// Reads the contract from model metadata. `Ok(None)` when the model carries no
     /// jetpilot contract at all (no `jetpilot.contract_version` key); an error when it
     /// carries one that is incomplete or malformed.
@@ -258,6 +274,39 @@ mod tests {
         };
         let meta: BTreeMap<_, _> = c.to_metadata().into_iter().collect();
         assert_eq!(ModelContract::from_metadata(&meta).unwrap(), Some(c));
+    }
+
+    #[test]
+    fn unlabelled_model_takes_its_fixed_square_input() {
+        let config = ModelContract {
+            input_size: 96,
+            channel_order: ChannelOrder::Bgr,
+            ..ModelContract::default()
+        };
+        // JetBot's notebook export: a fixed [1,3,224,224] input.
+        let c = config.for_unlabelled_input(&[1, 3, 224, 224]);
+        assert_eq!(c.input_size, 224);
+        assert_eq!(
+            c.channel_order,
+            ChannelOrder::Bgr,
+            "other keys stay the config's"
+        );
+        // A dynamic batch does not matter; a dynamic or non-square or odd image does.
+        assert_eq!(
+            config.for_unlabelled_input(&[-1, 3, 112, 112]).input_size,
+            112
+        );
+        assert_eq!(config.for_unlabelled_input(&[1, 3, -1, -1]).input_size, 96);
+        assert_eq!(
+            config.for_unlabelled_input(&[1, 3, 120, 160]).input_size,
+            96
+        );
+        assert_eq!(
+            config.for_unlabelled_input(&[1, 1, 112, 112]).input_size,
+            96
+        );
+        assert_eq!(config.for_unlabelled_input(&[1, 3, 16, 16]).input_size, 96);
+        assert_eq!(config.for_unlabelled_input(&[1, 3, 224]).input_size, 96);
     }
 
     #[test]

@@ -132,7 +132,18 @@ impl OrtPolicy {
         let meta = read_metadata(&session);
         let (contract, contract_source) = match ModelContract::from_metadata(&meta) {
             Ok(Some(c)) => (c, ContractSource::ModelMetadata),
-            Ok(None) => (opts.fallback_contract.clone(), ContractSource::Config),
+            Ok(None) => {
+                let dims = session
+                    .inputs()
+                    .first()
+                    .and_then(|i| i.dtype().tensor_shape().map(|d| d.to_vec()))
+                    .unwrap_or_default();
+                let c = opts.fallback_contract.for_unlabelled_input(&dims);
+                if c.input_size != opts.fallback_contract.input_size {
+                    tracing::info!(model = %shown, input_size = c.input_size, config_input_size = opts.fallback_contract.input_size, "no jetpilot metadata: the input size is the model's fixed input, not the config's model.input_size");
+                }
+                (c, ContractSource::Config)
+            }
             Err(source) => {
                 return Err(PolicyError::Contract {
                     path: shown,

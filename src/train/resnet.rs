@@ -351,15 +351,21 @@ pub fn load_onnx(path: &Path, device: &Device) -> Result<(Resnet18, ModelContrac
     let contract = match summary.contract() {
         Ok(Some(c)) => c,
         Ok(None) => {
-            let mut c = ModelContract::default();
-            if let Some(input) = summary.inputs.first()
-                && let [_, _, Dim::Fixed(h), Dim::Fixed(w)] = input.dims.as_slice()
-                && h == w
-                && *h > 0
-            {
-                c.input_size = *h as u32;
-            }
-            c
+            let dims: Vec<i64> = summary
+                .inputs
+                .first()
+                .map(|input| {
+                    input
+                        .dims
+                        .iter()
+                        .map(|d| match d {
+                            Dim::Fixed(n) => *n,
+                            _ => -1,
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            ModelContract::default().for_unlabelled_input(&dims)
         }
         Err(source) => {
             return Err(TrainError::Contract {
