@@ -526,6 +526,46 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // The same recording as the road (`road = "path"`): an 8 s drive does not come back to
+    // its start, so the road is open, and the expert is carried back to its start at the end.
+    let path = dir.path().join("path.toml");
+    std::fs::write(
+        &path,
+        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\nroad = \"path\"\n"),
+    )
+    .unwrap();
+    let json = dir.path().join("path.json");
+    let out = jp()
+        .args(["-q", "eval", "--expert", "--seconds", "12", "--config"])
+        .arg(&path)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["interventions"], 0, "{v}");
+    // A path road needs replayed frames: refused, naming the key.
+    std::fs::write(
+        &path,
+        format!("{base}[sim]\nrecording = {demos:?}\nroad = \"path\"\n"),
+    )
+    .unwrap();
+    let out = jp()
+        .args(["-q", "eval", "--expert", "--seconds", "1", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("sim.frames = \"replay\""),
+        "{err}"
+    );
     // The real daemon (threads, actuator, watchdog) on the simulated car, in real time.
     let out = jp()
         .args(["-q", "sim", "--realtime", "--seconds", "2", "--config"])

@@ -484,3 +484,85 @@ fn train_plot_draws_one_line_per_series_and_names_a_missing_column() {
         "{err}"
     );
 }
+
+#[test]
+fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
+    // Issue 12, item 3: a recording with poses and no track file is the road
+    // (`sim.road = "path"`); `eval` and `train ddpg --sim` run on it unchanged. Here 40 s of
+    // the expert on the mat (about 1.2 laps) close into a loop.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    // A frame every 3rd step: 2 cm apart at the expert's 0.2 m/s, 400 frames.
+    let tub = dir.path().join("demos");
+    ok(&jetpilot(
+        &[
+            "sim",
+            "--expert",
+            "--seconds",
+            "40",
+            "--record-every",
+            "3",
+            "--config",
+        ],
+        &[&cfg, Path::new("--record"), &tub],
+    ));
+    let path_cfg = dir.path().join("path.toml");
+    std::fs::write(
+        &path_cfg,
+        format!(
+            "{}[sim]\nframes = \"replay\"\nrecording = {tub:?}\nroad = \"path\"\n",
+            std::fs::read_to_string(&cfg).unwrap()
+        ),
+    )
+    .unwrap();
+    let json = dir.path().join("eval.json");
+    ok(&jetpilot(
+        &["eval", "--expert", "--seconds", "15", "--config"],
+        &[&path_cfg, Path::new("--json"), &json],
+    ));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["interventions"], 0, "{v}");
+    // 15 s at the expert's 0.2 m/s is about 3 m of a 7.1 m loop.
+    let laps = v["laps"].as_f64().unwrap();
+    assert!((0.3..0.5).contains(&laps), "{v}");
+    assert!(v["rewards"].as_u64().unwrap() > 300, "{v}");
+
+    let il_out = dir.path().join("il");
+    ok(&il(&cfg, &tub, &il_out, &["--epochs", "1"]));
+    let out = dir.path().join("ddpg");
+    ok(&jetpilot(
+        &[
+            "train",
+            "ddpg",
+            "--episodes",
+            "2",
+            "--episode-steps",
+            "30",
+            "--eval-every",
+            "2",
+            "--eval-seconds",
+            "3",
+            "--warmup-updates",
+            "5",
+            "--batch",
+            "16",
+            "--seed",
+            "1",
+            "--threads",
+            "1",
+        ],
+        &[
+            Path::new("--sim"),
+            &path_cfg,
+            Path::new("--init"),
+            &il_out.join("best.onnx"),
+            Path::new("--demos"),
+            &tub,
+            Path::new("--out"),
+            &out,
+        ],
+    ));
+    assert_eq!(csv_rows(&out.join("ddpg_episodes.csv")).len(), 2);
+    assert!(out.join("best.onnx").is_file());
+}

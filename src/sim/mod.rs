@@ -25,6 +25,7 @@ pub mod expert;
 pub mod layout;
 pub mod lens;
 pub mod odometry;
+pub mod path_road;
 pub mod realtime;
 pub mod render;
 pub mod reward;

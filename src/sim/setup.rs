@@ -11,6 +11,7 @@ use super::appearance::Appearance;
 use super::camera::CameraModel;
 use super::closed_loop::{self, LoopSettings, Pilot};
 use super::expert::ExpertParams;
+use super::path_road::{PathRoadConfig, road_from_path};
 use super::render::{MatTexture, Renderer};
 use super::reward::RewardParams;
 use super::robot::RobotParams;
@@ -35,12 +36,28 @@ pub enum FrameMode {
     Replay,
 }
 
+/// What the road is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RoadSource {
+    /// The track file (`sim.track`) or the built-in mat.
+    #[default]
+    Track,
+    /// The recording's own path plus or minus half a lane (`[sim.path]`): a real recording
+    /// with estimated poses and no track file (`sim.frames = "replay"`, `sim.recording`).
+    Path,
+}
+
 /// `[sim]`: the simulator. Every key has a default.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
     /// Track file; unset: the built-in JetBot mat (config/tracks/jetbot_mat.toml).
     pub track: Option<PathBuf>,
+    /// `track` (default) or `path`: the road is the recording's path (replay only).
+    pub road: RoadSource,
+    /// `road = "path"`: the lane around the recorded path.
+    pub path: PathRoadConfig,
     /// Drive the track the other way round (the built-in mat: clockwise), still in the
     /// right-hand lane.
     pub reverse: bool,
@@ -74,6 +91,8 @@ impl Default for SimConfig {
     fn default() -> Self {
         Self {
             track: None,
+            road: RoadSource::Track,
+            path: PathRoadConfig::default(),
             reverse: false,
             frames: FrameMode::Render,
             recording: None,
@@ -137,10 +156,58 @@ pub fn load_track(cfg: &SimConfig) -> Result<Track, SimError> {
     Ok(if cfg.reverse { track.reversed() } else { track })
 }
 
+/// `sim.road = "path"`: the recording, and the road made from its path (the other way
+/// round with `reverse`).
+pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
+    let needs = |what: &str| {
+        SimError::Invalid(format!(
+            "sim.road = \"path\" needs {what}: the road is the path of a recording with poses \
+             (README, \"Replay a real recording\")"
+        ))
+    };
+    if sim.frames != FrameMode::Replay {
+        return Err(needs("sim.frames = \"replay\""));
+    }
+    if sim.track.is_some() {
+        return Err(needs(
+            "no sim.track (a track file and a path road are two roads)",
+        ));
+    }
+    if sim.layouts.enabled {
+        return Err(needs("[sim.layouts] off"));
+    }
+    let Some(dir) = &sim.recording else {
+        return Err(needs("sim.recording"));
+    };
+    let recording = tub_recording(dir, &sim.camera)?;
+    let poses: Vec<Pose2> = recording.frames.iter().map(|f| f.pose).collect();
+    let road = road_from_path(&poses, &sim.path, &dir.display().to_string())?;
+    tracing::info!(
+        recording = %dir.display(),
+        frames = recording.frames.len(),
+        path_m = format!("{:.2}", road.path_length_m),
+        road_m = format!("{:.2}", road.track.length()),
+        closed = road.closed,
+        closing_gap_m = format!("{:.3}", road.closing_gap_m),
+        "replay: the road is the recorded path"
+    );
+    let track = if sim.reverse {
+        road.track.reversed()
+    } else {
+        road.track
+    };
+    Ok((track, recording))
+}
+
 /// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it
 /// would the real one (layout, address, trims from `[motors]`).
 pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
     let sim = &cfg.sim;
+    if sim.road == RoadSource::Path {
+        let (track, recording) = path_road(sim)?;
+        let frames = FrameMaker::Replay(Synthesizer::new(recording, track.road_half_width())?);
+        return rig(cfg, track, frames);
+    }
     let track = load_track(sim)?;
     let frames = match sim.frames {
         FrameMode::Render => FrameMaker::Render(renderer(sim, &track)?),

@@ -335,6 +335,12 @@ pub struct Track {
     drive_lane: DriveLane,
     segs: Vec<Seg>,
     length: f64,
+    /// A one-lane road centred on the centre line (a recorded path, [`Track::from_polyline`]):
+    /// the robot drives the centre line and the edges are at +-`lane_width / 2`.
+    single_lane: bool,
+    /// The centre line closes into a loop (every track file does); an open one is a
+    /// recording that does not come back to where it started.
+    closed: bool,
 }
 
 impl Track {
@@ -430,7 +436,76 @@ impl Track {
             drive_lane: c.drive_lane,
             segs,
             length: s,
+            single_lane: false,
+            closed: true,
         }
+    }
+
+    /// A one-lane road `lane_width` wide whose centre line is the polyline through `points`
+    /// (x, y in metres, at least two, consecutive points apart), closed back to the first
+    /// point when `closed`. The robot drives the centre line. Each straight piece is placed
+    /// where its points are (no chaining, so nothing accumulates); the heading turns at the
+    /// vertices. `mat` is the area the road lies in, for the renderer's texture.
+    pub fn from_polyline(
+        name: &str,
+        points: &[(f64, f64)],
+        closed: bool,
+        lane_width: f64,
+        mat: (f64, f64),
+    ) -> Result<Track> {
+        let err = |reason: String| SimError::Track {
+            origin: name.to_string(),
+            reason,
+        };
+        if points.len() < 2 {
+            return Err(err(format!(
+                "a road needs at least 2 path points, got {}",
+                points.len()
+            )));
+        }
+        if !(lane_width.is_finite() && lane_width > 0.0 && lane_width <= 1.0) {
+            return Err(err(format!(
+                "lane width {lane_width} m: allowed 0 < lane_width <= 1 m"
+            )));
+        }
+        let n = points.len();
+        let pieces = if closed { n } else { n - 1 };
+        let mut segs = Vec::with_capacity(pieces);
+        let mut s = 0.0;
+        for i in 0..pieces {
+            let (x0, y0) = points[i];
+            let (x1, y1) = points[(i + 1) % n];
+            let length = (x1 - x0).hypot(y1 - y0);
+            if !(length.is_finite() && length > 1e-6) {
+                return Err(err(format!(
+                    "path points {i} and {} coincide or are not finite: ({x0}, {y0}), ({x1}, {y1})",
+                    (i + 1) % n
+                )));
+            }
+            let h = (y1 - y0).atan2(x1 - x0);
+            segs.push(Seg::new(s, x0, y0, h, Piece::Line { length }));
+            s += length;
+        }
+        Ok(Track {
+            name: name.to_string(),
+            mat,
+            lane_width,
+            drive_lane: DriveLane::Right,
+            segs,
+            length: s,
+            single_lane: true,
+            closed,
+        })
+    }
+
+    /// Whether the centre line is a loop (progress wraps at [`Track::length`]).
+    pub fn is_closed(&self) -> bool {
+        self.closed
+    }
+
+    /// Whether the road is one lane centred on the centre line (a recorded path).
+    pub fn is_single_lane(&self) -> bool {
+        self.single_lane
     }
 
     /// The same road driven the other way round: the segments in reverse order with their
@@ -441,6 +516,20 @@ impl Track {
         let Some(first) = self.segs.first() else {
             return self.clone();
         };
+        if self.single_lane {
+            // A recorded path: the same points the other way round.
+            let mut points: Vec<(f64, f64)> = self.segs.iter().map(|g| (g.x0, g.y0)).collect();
+            if !self.closed
+                && let Some(last) = self.segs.last()
+            {
+                let (x, y, _) = last.end();
+                points.push((x, y));
+            }
+            points.reverse();
+            let name = format!("{} (reversed)", self.name);
+            return Track::from_polyline(&name, &points, self.closed, self.lane_width, self.mat)
+                .unwrap_or_else(|_| self.clone());
+        }
         let pieces = self
             .segs
             .iter()
@@ -587,9 +676,14 @@ impl Track {
         self.lane_width as f32
     }
 
-    /// Half the road's width: the lateral offset of the yellow edges (m).
+    /// Half the road's width: the lateral offset of the yellow edges (m). Two lanes, or one
+    /// on a recorded path.
     pub fn road_half_width(&self) -> f32 {
-        self.lane_width as f32
+        if self.single_lane {
+            (self.lane_width / 2.0) as f32
+        } else {
+            self.lane_width as f32
+        }
     }
 
     /// The mat's size (x, y) in metres.
@@ -605,6 +699,9 @@ impl Track {
     /// (-lane_width/2 for the right lane).
     pub fn lane_offset(&self) -> f32 {
         let half = (self.lane_width / 2.0) as f32;
+        if self.single_lane {
+            return 0.0;
+        }
         match self.drive_lane {
             DriveLane::Right => -half,
             DriveLane::Left => half,
@@ -687,11 +784,15 @@ impl Track {
     }
 
     /// Signed progress from `s_prev` to `s_now`, taking the shorter way round the lap (so a
-    /// crossing of the start line forward is a small positive number).
+    /// crossing of the start line forward is a small positive number); on an open road,
+    /// the plain difference.
     pub fn progress_delta(&self, s_prev: f32, s_now: f32) -> f32 {
         let len = self.length;
         if len <= 0.0 {
             return 0.0;
+        }
+        if !self.closed {
+            return s_now - s_prev;
         }
         let d = (f64::from(s_now) - f64::from(s_prev)).rem_euclid(len);
         (if d > len / 2.0 { d - len } else { d }) as f32
@@ -707,6 +808,9 @@ impl Track {
     fn wrap_s(&self, s: f64) -> f64 {
         if self.length <= 0.0 {
             return 0.0;
+        }
+        if !self.closed {
+            return s.clamp(0.0, self.length);
         }
         let w = s.rem_euclid(self.length);
         if w >= self.length { 0.0 } else { w }
@@ -741,7 +845,7 @@ impl Track {
     /// colour for it. All are closed polylines; arcs are sampled to within 1 mm of chord
     /// error. The geometry (road width, lanes) stays the track's whatever the paint.
     pub fn paint_with(&self, style: &RoadPaint) -> Vec<PaintStroke> {
-        let half = self.lane_width;
+        let half = f64::from(self.road_half_width());
         let edge_w = style.edge_width_m.clamp(0.0, 0.1);
         let stations = self.paint_stations(half + f64::from(edge_w.max(EDGE_LINE_WIDTH_M)));
         let line = |lat: f64| -> Vec<(f32, f32)> {
@@ -758,7 +862,7 @@ impl Track {
             width_m,
             rgb,
             dash,
-            closed: true,
+            closed: self.closed,
         };
         let mut out = Vec::with_capacity(4);
         if let Some(rgb) = style.road_rgb {
@@ -768,7 +872,9 @@ impl Track {
             out.push(stroke(half, edge_w, rgb, None));
             out.push(stroke(-half, edge_w, rgb, None));
         }
-        if let Some(rgb) = style.centre_rgb {
+        if let Some(rgb) = style.centre_rgb
+            && !self.single_lane
+        {
             out.push(stroke(0.0, style.centre_width_m, rgb, style.centre_dash_m));
         }
         out
@@ -791,6 +897,9 @@ impl Track {
             for k in 0..n {
                 out.push(seg.s0 + seg.len * k as f64 / n as f64);
             }
+        }
+        if !self.closed {
+            out.push(self.length);
         }
         out
     }

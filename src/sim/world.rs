@@ -19,6 +19,10 @@ use super::track::Track;
 use super::virtual_motors::VirtualMotors;
 use super::{Pose2, render::Renderer};
 
+/// On a road that does not close (a recorded path, `sim.road = "path"`), this close to its
+/// end the robot is put back at the start.
+pub const OPEN_ROAD_END_M: f32 = 0.05;
+
 /// How camera frames are made.
 pub enum FrameMaker {
     /// Drawn from the mat texture at the exact pose.
@@ -352,6 +356,12 @@ impl World {
         self.stats.reward_sum += r as f64;
         if is_reward(r, &self.reward) {
             self.stats.rewards += 1;
+        }
+        if !self.track.is_closed() && q.s >= self.track.length() - OPEN_ROAD_END_M {
+            // The end of a recording that is not a loop: carried back to its start, which
+            // is not an intervention (the car did nothing wrong).
+            self.reset_at(0.0);
+            self.stall_window = (self.stats.time_s, self.stats.progress_m);
         }
         StepScore {
             reward: r,
