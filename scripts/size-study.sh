@@ -21,7 +21,8 @@
 #
 # SIZES (default "96 112 160 224"), EPOCHS (default 50: the paper's recipe; at 20 the 224
 # and 160 policies drove the mat's corners within a few cm of the edge), EVAL_S (default 600), IMAGES
-# (default 3000), BIN (a built jetpilot: no build). A step whose output exists is skipped,
+# (default 3000), BIN (a built jetpilot: no build), CFG (default config/sim.toml; a copy in
+# an older BIN's format when BIN is older than the tree). A step whose output exists is skipped,
 # so an interrupted study goes on where it stopped. Logs in OUT/*.log; OUT/summary.txt.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -32,7 +33,7 @@ SIZES=${SIZES:-96 112 160 224}
 EPOCHS=${EPOCHS:-50}
 EVAL_S=${EVAL_S:-600}
 IMAGES=${IMAGES:-3000}
-CFG=config/sim.toml
+CFG=${CFG:-config/sim.toml}   # a copy in the format of an older BIN, if BIN is older
 if [ -n "$REAL" ] && [ ! -d "$REAL" ]; then
   echo "scripts/size-study.sh: REALDATA '$REAL' is not a folder of labelled JetBot frames" >&2
   exit 2

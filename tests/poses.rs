@@ -138,6 +138,33 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
     let first = est.records().next().unwrap();
     assert!(first.wheels.is_some());
 
+    // The estimated poses make a replay simulator of the recording (issue 12, item 3): its
+    // path is the road, and the expert drives it without leaving it.
+    let cfg = dir.path().join("replay.toml");
+    std::fs::write(
+        &cfg,
+        std::fs::read_to_string(repo("config/sim.toml"))
+            .unwrap()
+            .replace(
+                "frames = \"render\"",
+                &format!("frames = \"replay\"\nrecording = {out:?}"),
+            )
+            .replace("road = \"track\"", "road = \"path\""),
+    )
+    .unwrap();
+    let o = jetpilot(&[
+        "-q",
+        "eval",
+        "--expert",
+        "--seconds",
+        "3",
+        "--config",
+        &cfg.display().to_string(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(text.contains("interventions  0"), "{text}");
+
     // Nothing is overwritten, and a tub that has poses is not re-estimated.
     let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);
     assert!(!o.status.success());
