@@ -162,7 +162,11 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
         &cfg.display().to_string(),
     ]);
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(text.contains("interventions  0"), "{text}");
 
     // Nothing is overwritten, and a tub that has poses is not re-estimated.
