@@ -141,15 +141,15 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
     // The estimated poses make a replay simulator of the recording (issue 12, item 3): its
     // path is the road, and the expert drives it without leaving it.
     let cfg = dir.path().join("replay.toml");
+    let text = std::fs::read_to_string(repo("config/sim.toml")).unwrap();
+    assert!(text.contains("frames = \"render\"") && text.contains("road = \"track\""));
     std::fs::write(
         &cfg,
-        std::fs::read_to_string(repo("config/sim.toml"))
-            .unwrap()
-            .replace(
-                "frames = \"render\"",
-                &format!("frames = \"replay\"\nrecording = {out:?}"),
-            )
-            .replace("road = \"track\"", "road = \"path\""),
+        text.replace(
+            "frames = \"render\"",
+            &format!("frames = \"replay\"\nrecording = {out:?}"),
+        )
+        .replace("road = \"track\"", "road = \"path\""),
     )
     .unwrap();
     let o = jetpilot(&[

@@ -566,6 +566,30 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
         !out.status.success() && err.contains("sim.frames = \"replay\""),
         "{err}"
     );
+    // Nor driven the other way: the recorded frames look the way it was driven.
+    std::fs::write(
+        &path,
+        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\nroad = \"path\"\n"),
+    )
+    .unwrap();
+    let out = jp()
+        .args([
+            "-q",
+            "eval",
+            "--expert",
+            "--seconds",
+            "1",
+            "--reverse",
+            "--config",
+        ])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("reverse = false"),
+        "{err}"
+    );
     // The real daemon (threads, actuator, watchdog) on the simulated car, in real time.
     let out = jp()
         .args(["-q", "sim", "--realtime", "--seconds", "2", "--config"])

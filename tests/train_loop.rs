@@ -523,9 +523,10 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["interventions"], 0, "{v}");
-    // 15 s at the expert's 0.2 m/s is about 3 m of a 7.1 m loop.
+    // 15 s at the expert's 0.2 m/s is about 3 m of the 6.62 m loop (0.38 laps of the
+    // 7.88 m path if it had stayed open).
     let laps = v["laps"].as_f64().unwrap();
-    assert!((0.3..0.5).contains(&laps), "{v}");
+    assert!((0.42..0.48).contains(&laps), "{v}");
     assert!(v["rewards"].as_u64().unwrap() > 300, "{v}");
 
     let il_out = dir.path().join("il");

@@ -86,7 +86,8 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         contract.channel_order.as_str(),
         match policy.contract_source() {
             ContractSource::ModelMetadata => "contract from the model's metadata",
-            ContractSource::Config => "no jetpilot metadata: JetBot's defaults",
+            ContractSource::Config =>
+                "no jetpilot metadata: JetBot's defaults, the size from the model's input",
         },
         s = contract.input_size,
     );

@@ -100,7 +100,8 @@ impl Env {
         Ok(StepOutcome {
             reward: score.reward,
             done: score.intervention,
-            truncated: self.steps >= self.max_steps,
+            // The end of an open road: carried back to its start, the episode is cut there.
+            truncated: self.steps >= self.max_steps || score.carried_back,
             pose: self.rig.world.pose(),
         })
     }

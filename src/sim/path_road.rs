@@ -8,7 +8,10 @@
 //! progress wraps there; otherwise the road is open and ends where the recording does.
 //!
 //! No smoothing: a moving average would pull curves inwards, and the poses are already a
-//! fused estimate. Points closer than a millimetre to the last kept one are dropped.
+//! fused estimate. Recorded points closer than [`MIN_STEP_M`] to the last kept one (a car
+//! standing still, its poses jittering) are dropped. The gap left where a loop closes is
+//! spread along the whole loop, so the road has no sideways step there. An open road must
+//! be at least [`MIN_OPEN_ROAD_M`] long.
 
 use serde::{Deserialize, Serialize};
 
@@ -34,6 +37,10 @@ impl Default for PathRoadConfig {
     }
 }
 
+/// Recorded points closer than this to the last kept one are dropped.
+pub const MIN_STEP_M: f64 = 0.003;
+/// The shortest open road.
+pub const MIN_OPEN_ROAD_M: f64 = 0.5;
 /// How far a path must go from its start before a return counts as closing the loop.
 pub const MIN_LOOP_AWAY_M: f64 = 1.0;
 /// The largest heading difference between the start and a return that closes the loop.
@@ -74,10 +81,19 @@ impl PathRoadConfig {
 /// `origin` names the recording in errors.
 pub fn road_from_path(poses: &[Pose2], cfg: &PathRoadConfig, origin: &str) -> Result<PathRoad> {
     cfg.validate()?;
-    let raw: Vec<(f64, f64)> = poses
-        .iter()
-        .map(|p| (f64::from(p.x), f64::from(p.y)))
-        .collect();
+    let mut raw: Vec<(f64, f64)> = Vec::with_capacity(poses.len());
+    for p in poses {
+        let q = (f64::from(p.x), f64::from(p.y));
+        if !(q.0.is_finite() && q.1.is_finite()) {
+            return Err(SimError::Track {
+                origin: origin.to_string(),
+                reason: format!("a recorded pose is not finite: ({}, {})", p.x, p.y),
+            });
+        }
+        if raw.last().is_none_or(|&l| dist(l, q) >= MIN_STEP_M) {
+            raw.push(q);
+        }
+    }
     let spacing = f64::from(cfg.spacing_m);
     let points = resample(&raw, spacing);
     let path_length_m = polyline_length(&raw);
@@ -92,19 +108,51 @@ pub fn road_from_path(poses: &[Pose2], cfg: &PathRoadConfig, origin: &str) -> Re
     let half = f64::from(cfg.lane_width_m) / 2.0;
     let (used, closed, closing_gap_m) = match loop_end(&points, half) {
         Some(k) => {
-            let gap = dist(points[k], points[0]);
-            (&points[..k], true, gap)
+            // points[k] is where the path came back. The gap's sideways part (across the
+            // start's direction) is spread along the loop, each point moved by its share
+            // of the way round, so the road has no sideways step at the seam; the part
+            // along the road only makes the closing piece a little longer or shorter.
+            let raw_gap = (points[0].0 - points[k].0, points[0].1 - points[k].1);
+            let t = {
+                let (dx, dy) = (points[1].0 - points[0].0, points[1].1 - points[0].1);
+                let n = dx.hypot(dy).max(1e-12);
+                (dx / n, dy / n)
+            };
+            let along = raw_gap.0 * t.0 + raw_gap.1 * t.1;
+            let gap = (raw_gap.0 - along * t.0, raw_gap.1 - along * t.1);
+            let total = spacing * k as f64;
+            let spread: Vec<(f64, f64)> = points[..k]
+                .iter()
+                .enumerate()
+                .map(|(i, &(x, y))| {
+                    let share = spacing * i as f64 / total;
+                    (x + share * gap.0, y + share * gap.1)
+                })
+                .collect();
+            (spread, true, raw_gap.0.hypot(raw_gap.1))
         }
-        None => (&points[..], false, 0.0),
+        None => {
+            let length = spacing * (points.len() - 1) as f64;
+            if length < MIN_OPEN_ROAD_M {
+                return Err(SimError::Track {
+                    origin: origin.to_string(),
+                    reason: format!(
+                        "the recorded path is {length:.2} m long and does not come back to its start: an open road must be at least {MIN_OPEN_ROAD_M} m"
+                    ),
+                });
+            }
+            (points, false, 0.0)
+        }
     };
+    let used = &used[..];
     let (min_x, min_y, max_x, max_y) = used.iter().fold(
         (f64::MAX, f64::MAX, f64::MIN, f64::MIN),
         |(a, b, c, d), &(x, y)| (a.min(x), b.min(y), c.max(x), d.max(y)),
     );
     // The area the road lies in, from the origin (for a texture; the replay does not draw).
     let mat = (
-        (max_x.max(0.0) - min_x.min(0.0)) + 1.0,
-        (max_y.max(0.0) - min_y.min(0.0)) + 1.0,
+        (max_x.max(0.0) - min_x.min(0.0)) + 0.5,
+        (max_y.max(0.0) - min_y.min(0.0)) + 0.5,
     );
     let track = Track::from_polyline(
         &format!("path of {origin}"),
@@ -264,6 +312,38 @@ mod tests {
         // Progress wraps: crossing the start forwards is a small step forwards.
         let len = road.track.length();
         assert!((road.track.progress_delta(len - 0.01, 0.01) - 0.02).abs() < 1e-4);
+    }
+
+    #[test]
+    fn the_gap_where_a_loop_closes_is_spread_along_it() {
+        // A spiral: the radius grows 6 cm over a turn, so the path comes back 6 cm outside
+        // its start (drifting poses do that).
+        let n = 400;
+        let spiral: Vec<Pose2> = (0..=(1.2 * n as f32) as usize)
+            .map(|i| {
+                let a = i as f32 / n as f32 * std::f32::consts::TAU;
+                let r = 0.6 + 0.06 * a / std::f32::consts::TAU;
+                Pose2::new(1.0 + r * a.cos(), 1.0 + r * a.sin(), 0.0)
+            })
+            .collect();
+        let road = road_from_path(&spiral, &PathRoadConfig::default(), "t").unwrap();
+        assert!(road.closed);
+        assert!(
+            (road.closing_gap_m - 0.06).abs() < 0.01,
+            "{}",
+            road.closing_gap_m
+        );
+        // No sideways step at the seam: the heading just before and just after it differ
+        // by about the 2 cm of turning between them (1.9 degrees), not the 72 degrees of a
+        // 6 cm step over 2 cm.
+        let t = &road.track;
+        let before = t.pose_at(t.length() - 0.01, 0.0).heading;
+        let after = t.pose_at(0.01, 0.0).heading;
+        let turn = crate::sim::wrap_angle(after - before).abs().to_degrees();
+        assert!(turn < 6.0, "{turn} degrees across the seam");
+        // The start stays where it was recorded.
+        let q = t.query(1.6, 1.0);
+        assert!(q.lateral.abs() < 0.002, "{q:?}");
     }
 
     #[test]

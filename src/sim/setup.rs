@@ -156,8 +156,7 @@ pub fn load_track(cfg: &SimConfig) -> Result<Track, SimError> {
     Ok(if cfg.reverse { track.reversed() } else { track })
 }
 
-/// `sim.road = "path"`: the recording, and the road made from its path (the other way
-/// round with `reverse`).
+/// `sim.road = "path"`: the recording, and the road made from its path.
 pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
     let needs = |what: &str| {
         SimError::Invalid(format!(
@@ -174,12 +173,30 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
         ));
     }
     if sim.layouts.enabled {
-        return Err(needs("[sim.layouts] off"));
+        return Err(needs("[sim.layouts] off (or no --random-layouts)"));
+    }
+    if sim.reverse {
+        return Err(needs(
+            "reverse = false (or no --reverse): the recorded frames look the way the recording drove",
+        ));
     }
     let Some(dir) = &sim.recording else {
         return Err(needs("sim.recording"));
     };
-    let recording = tub_recording(dir, &sim.camera)?;
+    let mut recording = tub_recording(dir, &sim.camera)?;
+    // Moved so the path lies 0.5 m inside the positive quadrant (estimated poses start at
+    // the origin; the top-down trace draws from it): frames and road move together, so
+    // nothing changes but the coordinates.
+    let (min_x, min_y) = recording
+        .frames
+        .iter()
+        .fold((f32::MAX, f32::MAX), |(a, b), f| {
+            (a.min(f.pose.x), b.min(f.pose.y))
+        });
+    for f in &mut recording.frames {
+        f.pose.x += 0.5 - min_x;
+        f.pose.y += 0.5 - min_y;
+    }
     let poses: Vec<Pose2> = recording.frames.iter().map(|f| f.pose).collect();
     let road = road_from_path(&poses, &sim.path, &dir.display().to_string())?;
     tracing::info!(
@@ -191,12 +208,7 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
         closing_gap_m = format!("{:.3}", road.closing_gap_m),
         "replay: the road is the recorded path"
     );
-    let track = if sim.reverse {
-        road.track.reversed()
-    } else {
-        road.track
-    };
-    Ok((track, recording))
+    Ok((road.track, recording))
 }
 
 /// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it

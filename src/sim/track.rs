@@ -528,7 +528,11 @@ impl Track {
             points.reverse();
             let name = format!("{} (reversed)", self.name);
             return Track::from_polyline(&name, &points, self.closed, self.lane_width, self.mat)
-                .unwrap_or_else(|_| self.clone());
+                .unwrap_or_else(|e| {
+                    // The same points as this road's: unreachable; keep the road as it is.
+                    tracing::error!("{e}; the path road is not reversed");
+                    self.clone()
+                });
         }
         let pieces = self
             .segs

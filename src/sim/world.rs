@@ -22,6 +22,9 @@ use super::{Pose2, render::Renderer};
 /// On a road that does not close (a recorded path, `sim.road = "path"`), this close to its
 /// end the robot is put back at the start.
 pub const OPEN_ROAD_END_M: f32 = 0.05;
+/// On an open road, a change of progress larger than this in one control period is a jump
+/// of the nearest road point (the road passing near itself), not driving.
+pub const OPEN_ROAD_MAX_STEP_M: f32 = 0.3;
 
 /// How camera frames are made.
 pub enum FrameMaker {
@@ -59,6 +62,9 @@ pub struct StepScore {
     /// Lane-edge distance and speed that went into the reward.
     pub edge_distance_m: f32,
     pub speed_mps: f32,
+    /// The robot reached the end of an open road and was carried back to its start (not
+    /// an intervention; a training episode is cut here).
+    pub carried_back: bool,
 }
 
 pub struct World {
@@ -328,7 +334,13 @@ impl World {
     pub fn score(&mut self) -> StepScore {
         let p = self.robot.pose;
         let q = self.track.query(p.x, p.y);
-        self.stats.progress_m += self.track.progress_delta(self.last_s, q.s) as f64;
+        let s_before = self.last_s;
+        let delta = self.track.progress_delta(self.last_s, q.s);
+        // An open road that passes near another part of itself can make the nearest point
+        // jump along it; no robot covers that in one control period, so it is not progress.
+        if self.track.is_closed() || delta.abs() <= OPEN_ROAD_MAX_STEP_M {
+            self.stats.progress_m += delta as f64;
+        }
         self.last_s = q.s;
         self.stats.control_steps += 1;
         let edge = self.track.lane_edge_distance(p.x, p.y);
@@ -350,6 +362,7 @@ impl World {
                 intervention: true,
                 edge_distance_m: edge,
                 speed_mps: speed,
+                carried_back: false,
             };
         }
         let r = reward(edge, speed, &self.reward);
@@ -357,7 +370,10 @@ impl World {
         if is_reward(r, &self.reward) {
             self.stats.rewards += 1;
         }
-        if !self.track.is_closed() && q.s >= self.track.length() - OPEN_ROAD_END_M {
+        let carried_back = !self.track.is_closed()
+            && q.s >= self.track.length() - OPEN_ROAD_END_M
+            && s_before >= self.track.length() - OPEN_ROAD_MAX_STEP_M;
+        if carried_back {
             // The end of a recording that is not a loop: carried back to its start, which
             // is not an intervention (the car did nothing wrong).
             self.reset_at(0.0);
@@ -368,6 +384,7 @@ impl World {
             intervention: false,
             edge_distance_m: edge,
             speed_mps: speed,
+            carried_back,
         }
     }
 

@@ -256,13 +256,25 @@ impl Failures {
     }
 
     /// A start (progress, metres) before a random remembered failure with probability
-    /// `share`; `None`: a random place. `length` wraps it onto the lap.
-    fn start(&self, share: f32, length: f32, rng: &mut impl rand::Rng) -> Option<f32> {
+    /// `share`; `None`: a random place. `length` wraps it onto the lap (on an open road,
+    /// `closed` false, it stops at the road's start).
+    fn start(
+        &self,
+        share: f32,
+        length: f32,
+        closed: bool,
+        rng: &mut impl rand::Rng,
+    ) -> Option<f32> {
         if self.at.is_empty() || share <= 0.0 || rng.random::<f32>() >= share {
             return None;
         }
         let s = self.at[rng.random_range(0..self.at.len())];
-        Some((s - rng.random_range(Self::BEFORE_M)).rem_euclid(length.max(1e-3)))
+        let s = s - rng.random_range(Self::BEFORE_M);
+        Some(if closed {
+            s.rem_euclid(length.max(1e-3))
+        } else {
+            s.max(0.0)
+        })
     }
 }
 
@@ -452,6 +464,7 @@ pub fn train(
     let mut features = vec![0.0f32; FEATURES];
     let mut failures = Failures::new();
     let track_length = env.world().track.length();
+    let track_closed = env.world().track.is_closed();
 
     while !done_early
         && episode < opts.max_episodes
@@ -463,8 +476,13 @@ pub fn train(
             .run(
                 w,
                 h,
-                env.reset(failures.start(opts.failure_resets, track_length, &mut rng))
-                    .map_err(sim_err)?,
+                env.reset(failures.start(
+                    opts.failure_resets,
+                    track_length,
+                    track_closed,
+                    &mut rng,
+                ))
+                .map_err(sim_err)?,
             )
             .map_err(|e| TrainError::Backend(e.to_string()))?;
         actor.backbone.features(input, &mut features)?;
@@ -627,16 +645,20 @@ mod tests {
     fn failure_resets_start_before_remembered_failures() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut f = Failures::new();
-        assert_eq!(f.start(1.0, 6.0, &mut rng), None, "nothing remembered yet");
+        assert_eq!(
+            f.start(1.0, 6.0, true, &mut rng),
+            None,
+            "nothing remembered yet"
+        );
         f.push(0.5);
         for _ in 0..200 {
-            let s = f.start(1.0, 6.0, &mut rng).unwrap();
+            let s = f.start(1.0, 6.0, true, &mut rng).unwrap();
             // 0.3..1.5 m before 0.5, wrapped onto the 6 m lap: 5.0..6.0 or 0.0..0.2.
             assert!((5.0..6.0).contains(&s) || (0.0..=0.2).contains(&s), "{s}");
         }
-        assert_eq!(f.start(0.0, 6.0, &mut rng), None);
+        assert_eq!(f.start(0.0, 6.0, true, &mut rng), None);
         let share = (0..2000)
-            .filter(|_| f.start(0.25, 6.0, &mut rng).is_some())
+            .filter(|_| f.start(0.25, 6.0, true, &mut rng).is_some())
             .count();
         assert!((400..600).contains(&share), "{share}");
         // The ring keeps the latest KEEP failures.
