@@ -529,19 +529,22 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     // The same recording as the road (`road = "path"`): an 8 s drive does not come back to
     // its start, so the road is open, and the expert is carried back to its start at the end.
     let path = dir.path().join("path.toml");
-    std::fs::write(
-        &path,
-        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\nroad = \"path\"\n"),
-    )
-    .unwrap();
+    let path_road =
+        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\nroad = \"path\"\n");
+    let eval_expert = |toml: &str, args: &[&str]| {
+        std::fs::write(&path, toml).unwrap();
+        jp().args(["-q", "eval", "--expert"])
+            .args(args)
+            .arg("--config")
+            .arg(&path)
+            .output()
+            .unwrap()
+    };
     let json = dir.path().join("path.json");
-    let out = jp()
-        .args(["-q", "eval", "--expert", "--seconds", "12", "--config"])
-        .arg(&path)
-        .arg("--json")
-        .arg(&json)
-        .output()
-        .unwrap();
+    let out = eval_expert(
+        &path_road,
+        &["--seconds", "12", "--json", json.to_str().unwrap()],
+    );
     assert!(
         out.status.success(),
         "{}",
@@ -551,40 +554,17 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["interventions"], 0, "{v}");
     // A path road needs replayed frames: refused, naming the key.
-    std::fs::write(
-        &path,
-        format!("{base}[sim]\nrecording = {demos:?}\nroad = \"path\"\n"),
-    )
-    .unwrap();
-    let out = jp()
-        .args(["-q", "eval", "--expert", "--seconds", "1", "--config"])
-        .arg(&path)
-        .output()
-        .unwrap();
+    let out = eval_expert(
+        &format!("{base}[sim]\nrecording = {demos:?}\nroad = \"path\"\n"),
+        &["--seconds", "1"],
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && err.contains("sim.frames = \"replay\""),
         "{err}"
     );
     // Nor driven the other way: the recorded frames look the way it was driven.
-    std::fs::write(
-        &path,
-        format!("{base}[sim]\nframes = \"replay\"\nrecording = {demos:?}\nroad = \"path\"\n"),
-    )
-    .unwrap();
-    let out = jp()
-        .args([
-            "-q",
-            "eval",
-            "--expert",
-            "--seconds",
-            "1",
-            "--reverse",
-            "--config",
-        ])
-        .arg(&path)
-        .output()
-        .unwrap();
+    let out = eval_expert(&path_road, &["--seconds", "1", "--reverse"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && err.contains("reverse = false"),

@@ -74,6 +74,51 @@ fn il(cfg: &Path, tub: &Path, out: &Path, extra: &[&str]) -> Output {
     )
 }
 
+/// A short `train ddpg --sim` run: `episodes` of `steps`, an in-training eval of
+/// `eval_seconds` every 2nd episode, small batches, seed 1, one thread.
+fn ddpg(
+    cfg: &Path,
+    init: &Path,
+    demos: &Path,
+    out: &Path,
+    episodes: &str,
+    steps: &str,
+    eval_seconds: &str,
+) -> Output {
+    jetpilot(
+        &[
+            "train",
+            "ddpg",
+            "--episodes",
+            episodes,
+            "--episode-steps",
+            steps,
+            "--eval-every",
+            "2",
+            "--eval-seconds",
+            eval_seconds,
+            "--warmup-updates",
+            "5",
+            "--batch",
+            "16",
+            "--seed",
+            "1",
+            "--threads",
+            "1",
+        ],
+        &[
+            Path::new("--sim"),
+            cfg,
+            Path::new("--init"),
+            init,
+            Path::new("--demos"),
+            demos,
+            Path::new("--out"),
+            out,
+        ],
+    )
+}
+
 fn csv_rows(path: &Path) -> Vec<String> {
     std::fs::read_to_string(path)
         .unwrap()
@@ -187,40 +232,7 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
     ok(&il(&cfg, &tub, &il_out, &["--epochs", "1"]));
     let init = il_out.join("best.onnx");
 
-    let run = |out: &Path| {
-        jetpilot(
-            &[
-                "train",
-                "ddpg",
-                "--episodes",
-                "3",
-                "--episode-steps",
-                "40",
-                "--eval-every",
-                "2",
-                "--eval-seconds",
-                "4",
-                "--warmup-updates",
-                "5",
-                "--batch",
-                "16",
-                "--seed",
-                "1",
-                "--threads",
-                "1",
-            ],
-            &[
-                Path::new("--sim"),
-                &cfg,
-                Path::new("--init"),
-                &init,
-                Path::new("--demos"),
-                &tub,
-                Path::new("--out"),
-                out,
-            ],
-        )
-    };
+    let run = |out: &Path| ddpg(&cfg, &init, &tub, out, "3", "40", "4");
     let a = dir.path().join("a");
     let text = ok(&run(&a));
     assert!(text.contains("demonstration transitions"), "{text}");
@@ -532,37 +544,14 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     let il_out = dir.path().join("il");
     ok(&il(&cfg, &tub, &il_out, &["--epochs", "1"]));
     let out = dir.path().join("ddpg");
-    ok(&jetpilot(
-        &[
-            "train",
-            "ddpg",
-            "--episodes",
-            "2",
-            "--episode-steps",
-            "30",
-            "--eval-every",
-            "2",
-            "--eval-seconds",
-            "3",
-            "--warmup-updates",
-            "5",
-            "--batch",
-            "16",
-            "--seed",
-            "1",
-            "--threads",
-            "1",
-        ],
-        &[
-            Path::new("--sim"),
-            &path_cfg,
-            Path::new("--init"),
-            &il_out.join("best.onnx"),
-            Path::new("--demos"),
-            &tub,
-            Path::new("--out"),
-            &out,
-        ],
+    ok(&ddpg(
+        &path_cfg,
+        &il_out.join("best.onnx"),
+        &tub,
+        &out,
+        "2",
+        "30",
+        "3",
     ));
     assert_eq!(csv_rows(&out.join("ddpg_episodes.csv")).len(), 2);
     assert!(out.join("best.onnx").is_file());
