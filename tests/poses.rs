@@ -200,6 +200,43 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
         "{stdout}"
     );
     assert!(png.exists());
+
+    // --check --out also writes the estimate as a tub (every 2nd frame here), from the
+    // true first pose, without the truth's rewards and target labels: the same pipeline
+    // can then run on estimated and on true poses.
+    let est_out = dir.path().join("check-est");
+    let args = [
+        "poses",
+        "--tub",
+        &sim.display().to_string(),
+        "--check",
+        "--every",
+        "2",
+        "--png",
+        &png.display().to_string(),
+        "--out",
+        &est_out.display().to_string(),
+    ];
+    let o = jetpilot(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let est = TubReader::open(&est_out).unwrap();
+    assert_eq!(est.len(), truth.len().div_ceil(2));
+    assert!(est_out.join("poses.csv").exists());
+    let (e0, t0) = (
+        est.records().next().unwrap(),
+        truth.records().next().unwrap(),
+    );
+    assert_eq!(e0.index, t0.index);
+    let (ep, tp) = (e0.pose.unwrap(), t0.pose.unwrap());
+    assert!((ep.0 - tp.0).abs() < 1e-4 && (ep.1 - tp.1).abs() < 1e-4 && (ep.2 - tp.2).abs() < 1e-4);
+    assert!(t0.reward.is_some() && t0.target.is_some());
+    assert!(est.records().all(|r| r.pose.is_some()
+        && r.wheels.is_some()
+        && r.reward.is_none()
+        && r.target.is_none()));
+    let o = jetpilot(&args);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("exists already"));
 }
 
 #[test]

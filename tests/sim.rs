@@ -678,6 +678,43 @@ fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
     let ms: Vec<u64> = reader.records().map(|r| r.timestamp_ms).collect();
     assert_eq!(ms.len(), 45);
     assert!(ms.windows(2).all(|w| w[1] - w[0] <= 67), "{ms:?}");
+    // With --record-swerves the recorder runs through the swerves (a continuous
+    // recording, to replay its path): every 2nd step again, though the expert swerved.
+    let all = dir.path().join("all");
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--expert", "--seconds", "3"])
+        .args([
+            "--swerve-every",
+            "1",
+            "--record-swerves",
+            "--record-every",
+            "2",
+        ])
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--record")
+        .arg(&all)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let reader = jetpilot::dataset::tub::TubReader::open(&all).unwrap();
+    let ms: Vec<u64> = reader.records().map(|r| r.timestamp_ms).collect();
+    assert_eq!(ms.len(), 45);
+    assert!(ms.windows(2).all(|w| w[1] - w[0] <= 67), "{ms:?}");
+    // ... and its path is not the plain drive's: the swerves are in it.
+    let plain_end = jetpilot::dataset::tub::TubReader::open(&plain)
+        .unwrap()
+        .records()
+        .last()
+        .and_then(|r| r.pose)
+        .unwrap();
+    let swerved_end = reader.records().last().and_then(|r| r.pose).unwrap();
+    let apart = (plain_end.0 - swerved_end.0).hypot(plain_end.1 - swerved_end.1);
+    assert!(apart > 0.002, "the swerves left no trace: {apart} m");
 }
 
 #[test]

@@ -10,6 +10,7 @@ use anyhow::Context;
 use jetpilot::config::Config;
 use jetpilot::dataset::tub::TubReader;
 use jetpilot::sim::Pose2;
+use jetpilot::sim::odometry::output::Labels;
 use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, check, output};
 
 #[derive(Debug, clap::Args)]
@@ -23,11 +24,14 @@ pub struct PosesArgs {
     config: Option<PathBuf>,
     /// The new tub, with `pose/x`, `pose/y`, `pose/heading` (default: `<tub>-poses`);
     /// `poses.csv` (per frame: pose, confidence, source) and `poses.png` (the trace) go
-    /// in it too.
+    /// in it too. With --check: also write the estimate there (the tub with its poses
+    /// replaced by the estimate, rewards and target labels left out), to run the
+    /// pipeline on estimated poses beside the true ones.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
     /// The tub's own poses are the truth: estimate without them from its first pose, and
-    /// report the drift of the estimate and of the wheels alone (writes only the trace).
+    /// report the drift of the estimate and of the wheels alone (writes only the trace,
+    /// and the estimate's tub with --out).
     #[arg(long)]
     check: bool,
     /// With --check: use every N-th frame (a lower frame rate).
@@ -84,7 +88,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     for w in &est.warnings {
         tracing::warn!("{w}");
     }
-    let n = output::write_tub(&tub, &est, &out, super::unix_now())?;
+    let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep)?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
     if let Some(sc) = est.scales {
@@ -128,6 +132,12 @@ fn check_against_truth(
             args.tub.display()
         );
     };
+    if let Some(out) = args.out.as_ref().filter(|o| o.exists()) {
+        anyhow::bail!(
+            "{} exists already: give another --out (nothing is overwritten)",
+            out.display()
+        );
+    }
     let opts = ReadOptions {
         every: args.every,
         noise: args.noise,
@@ -177,5 +187,10 @@ fn check_against_truth(
         "trace: {} (grey: truth, green: estimate, red: frames from the wheels)",
         png.display()
     );
+    if let Some(out) = &args.out {
+        let n = output::write_tub(tub, &est, out, super::unix_now(), Labels::RobotOnly)?;
+        output::write_csv(&est, &out.join("poses.csv"))?;
+        println!("{n} records with the estimated poses -> {}", out.display());
+    }
     Ok(ExitCode::SUCCESS)
 }

@@ -128,6 +128,11 @@ pub struct SimArgs {
     /// and DonkeyCar users collect them. Overrides `[sim.expert] swerve_every_s`.
     #[arg(long, value_name = "SECONDS", requires = "expert")]
     swerve_every: Option<f32>,
+    /// With --record and --swerve-every: record the swerves too (the recorder left running
+    /// through the whole drive, as a continuous recording whose path is replayed with
+    /// `sim.road = "path"`; not demonstrations to imitate).
+    #[arg(long, requires_all = ["record", "swerve_every"])]
+    record_swerves: bool,
     /// Write pictures a person can look at into this folder: `frames.png` (a strip of camera
     /// frames) and `trace.png` (the mat from above with the driven path and interventions).
     #[arg(long, value_name = "DIR")]
@@ -391,13 +396,16 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
     let mut recorder = match &args.record {
         Some(dir) => {
             let now = super::unix_now();
-            Some(DemoRecorder::create(
-                dir,
-                args.record_xy.as_deref(),
-                cfg.sim.camera,
-                now,
-                cfg.sim.seed,
-            )?)
+            Some(
+                DemoRecorder::create(
+                    dir,
+                    args.record_xy.as_deref(),
+                    cfg.sim.camera,
+                    now,
+                    cfg.sim.seed,
+                )?
+                .record_swerves(args.record_swerves),
+            )
         }
         None => None,
     };

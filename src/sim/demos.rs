@@ -26,6 +26,7 @@ pub struct DemoRecorder {
     rng: ChaCha8Rng,
     jpeg: Vec<u8>,
     written: u64,
+    record_swerves: bool,
 }
 
 impl DemoRecorder {
@@ -51,14 +52,24 @@ impl DemoRecorder {
             rng: ChaCha8Rng::seed_from_u64(seed),
             jpeg: Vec::new(),
             written: 0,
+            record_swerves: false,
         })
+    }
+
+    /// Also records the expert's deliberate swerves, as a person who leaves the recorder
+    /// running through the whole drive would (a continuous recording, e.g. to replay its
+    /// path with `sim.road = "path"`; not demonstrations to imitate).
+    pub fn record_swerves(mut self, on: bool) -> Self {
+        self.record_swerves = on;
+        self
     }
 
     /// Appends one step. The expert's steps are "user" (the human stand-in), a model's "local".
     /// The expert's deliberate swerves are left out (recording paused, as a person collecting
-    /// recovery data would): only the way back is a demonstration.
+    /// recovery data would): only the way back is a demonstration. Unless
+    /// [`Self::record_swerves`].
     pub fn append(&mut self, step: &StepRecord<'_>) -> Result<(), DatasetError> {
-        if step.expert.is_some_and(|e| e.swerving) {
+        if !self.record_swerves && step.expert.is_some_and(|e| e.swerving) {
             return Ok(());
         }
         let f = step.frame;

@@ -27,6 +27,16 @@ pub fn partial_dir(out: &Path) -> PathBuf {
     out.with_file_name(name)
 }
 
+/// What of a record besides its frame and commands goes into the new tub.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Labels {
+    /// Everything the record has (rewards, target labels), with the estimated pose.
+    Keep,
+    /// Only what `jetpilot record` on a robot writes, plus the estimated pose: for a
+    /// simulated tub whose rewards and target labels come from the true poses (`--check`).
+    RobotOnly,
+}
+
 /// Writes every live record of `tub` that has a pose in `estimate`, with that pose, to a
 /// new tub at `out` (which must not exist). Returns the records written.
 pub fn write_tub(
@@ -34,6 +44,7 @@ pub fn write_tub(
     estimate: &Estimate,
     out: &Path,
     created_at: f64,
+    labels: Labels,
 ) -> Result<usize, SimError> {
     if out.exists() {
         return Err(file_err(
@@ -54,8 +65,8 @@ pub fn write_tub(
     for r in tub.records() {
         inputs.pilot |= r.pilot_angle.is_some();
         inputs.wheels |= r.wheels.is_some();
-        inputs.reward |= r.reward.is_some();
-        inputs.target |= r.target.is_some();
+        inputs.reward |= labels == Labels::Keep && r.reward.is_some();
+        inputs.target |= labels == Labels::Keep && r.target.is_some();
     }
     let mut w =
         TubWriter::create(&partial, &inputs, created_at).map_err(|e| file_err(&partial, e))?;
@@ -70,6 +81,10 @@ pub fn write_tub(
         };
         let mut copy = rec.clone();
         copy.pose = Some((p.pose.x, p.pose.y, p.pose.heading));
+        if labels == Labels::RobotOnly {
+            copy.reward = None;
+            copy.target = None;
+        }
         w.append(&copy, &jpeg).map_err(|e| file_err(&partial, e))?;
         n += 1;
     }
