@@ -8,26 +8,30 @@
 #
 #   scripts/replay-closed-loop.sh [OUT]        (default OUT: .cache/replay-loop)
 #
-# 1. Demonstrations: 331 frames of the mat counter-clockwise with recoveries, randomised
-#    looks (a new one every 5 s), and the imitation policy trained on them (96x96).
-# 2. The drive: the mat clockwise (where that policy leaves the road, so DDPG has work to
-#    do), DRIVE_S simulated seconds, one randomised look for the whole drive (one camera
-#    in one room), the swerves recorded.
-# 3. Its poses estimated (`poses --check --out`: from the first true pose, the truth's
-#    rewards and labels left out), and a replay config on each set of poses.
+# 1. The drive: the mat clockwise, DRIVE_S simulated seconds at 30 Hz, one randomised look
+#    for the whole drive (one camera in one room), the expert's swerves recorded too (a
+#    person who leaves the recorder running).
+# 2. The imitation policy (96x96) trained on that drive, as its owner would; it does not
+#    depend on poses, so both pipelines start from it.
+# 3. The drive's poses estimated (`poses --check --out`: from the first true pose, the
+#    truth's rewards and labels left out), and a replay config on each set of poses.
 # 4. The imitation policy on both replays and on the rendered track; then IL + DDPG on
-#    each replay (same seed, same wall budget), each tested on the rendered track.
+#    each replay (same seed, same wall budget, the same demonstrations with rewards: 331
+#    frames of the mat counter-clockwise with recoveries and randomised looks), each
+#    tested on the rendered track, clockwise, in the drive's own world: the same seed and
+#    randomisation, so the same look as the recording (the room it was recorded in).
 #
-# Environment: MINUTES (DDPG wall budget per run, default 15), IL_EPOCHS (default 50),
+# Environment: MINUTES (DDPG wall budget per run, default 15), IL_EPOCHS (default 10: 1200
+# frames, neighbours alike at 30 Hz),
 # DRIVE_S (default 40: 1.2 laps), EVAL_S (the rendered-track tests, default 600), BIN (a
 # built jetpilot with --features train; default: build target/release/jetpilot),
 # ILDDPG_FLAGS (default: the levers of README's experiment). Steps already done (their
-# output exists) are skipped, so an interrupted run goes on. About 1 h 15 min on 2 cores.
+# output exists) are skipped, so an interrupted run goes on. About 1 h on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-.cache/replay-loop}
 MINUTES=${MINUTES:-15}
-IL_EPOCHS=${IL_EPOCHS:-50}
+IL_EPOCHS=${IL_EPOCHS:-10}
 DRIVE_S=${DRIVE_S:-40}
 EVAL_S=${EVAL_S:-600}
 ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 4000 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
@@ -43,31 +47,33 @@ fi
 mkdir -p "$OUT"
 log() { echo "== $(date +%H:%M:%S) $*"; }
 
-# The world: wheel-speed noise 10 % (as the odometry study). The drive keeps one look.
+# The world: wheel-speed noise 10 % (as the odometry study). The drive, and the tests in its
+# world, keep one look (also after an intervention).
 sed 's/^speed_noise = .*/speed_noise = 0.1/' config/sim.toml > "$OUT/sim-noise.toml"
-sed 's/^redraw_every_frames = .*/redraw_every_frames = 0/' "$OUT/sim-noise.toml" > "$OUT/drive.toml"
+sed 's/^redraw_every_frames = .*/redraw_every_frames = 0/; s/^redraw_at_reset = .*/redraw_at_reset = false/' \
+  "$OUT/sim-noise.toml" > "$OUT/drive.toml"
 
 if [ ! -d "$OUT/demos" ]; then
   log demonstrations
   $B -q sim --config "$OUT/sim-noise.toml" --expert --randomise --seconds 60 --swerve-every 3 \
     --record-every 3 --record-frames 331 --record "$OUT/demos" --png "$OUT/demos-png"
 fi
-if [ ! -f "$OUT/il/best.onnx" ]; then
-  log "imitation learning ($IL_EPOCHS epochs)"
-  $B train il --config "$OUT/sim-noise.toml" --input-size 96 --head speed-steering \
-    --epochs "$IL_EPOCHS" --data "$OUT/demos" --out "$OUT/il" > "$OUT/il.log" 2>&1
-fi
-IL=$OUT/il/best.onnx
 if [ ! -d "$OUT/drive" ]; then
   log "the drive (clockwise, swerves recorded)"
   $B -q sim --config "$OUT/drive.toml" --expert --reverse --randomise --seconds "$DRIVE_S" \
     --swerve-every 3 --record-swerves --record "$OUT/drive" --png "$OUT/drive-png"
+fi
+if [ ! -f "$OUT/il/best.onnx" ]; then
+  log "imitation learning on the drive ($IL_EPOCHS epochs)"
+  $B train il --config "$OUT/sim-noise.toml" --input-size 96 --head speed-steering \
+    --epochs "$IL_EPOCHS" --data "$OUT/drive" --out "$OUT/il" > "$OUT/il.log" 2>&1
 fi
 if [ ! -d "$OUT/drive-est" ]; then
   log "poses"
   $B poses --tub "$OUT/drive" --config "$OUT/sim-noise.toml" --check --png "$OUT/odometry.png" \
     --out "$OUT/drive-est" | tee "$OUT/odometry.txt"
 fi
+IL=$OUT/il/best.onnx
 for poses in true est; do
   tub=drive
   [ "$poses" = est ] && tub=drive-est
@@ -76,12 +82,13 @@ for poses in true est; do
 done
 
 # The imitation policy before DDPG: on both replays (120 s, as DDPG's own tests there) and
-# on the rendered track, clockwise.
+# on the rendered track, clockwise, in the drive's look.
+TRACK=(--config "$OUT/drive.toml" --reverse --randomise)
 for poses in true est; do
   [ -f "$OUT/eval_il_path_$poses.json" ] || $B -q eval --config "$OUT/path-$poses.toml" --model "$IL" \
     --seconds 120 --json "$OUT/eval_il_path_$poses.json" --png "$OUT/il_path_$poses.png"
 done
-[ -f "$OUT/eval_il_track.json" ] || $B -q eval --config config/sim.toml --reverse --model "$IL" \
+[ -f "$OUT/eval_il_track.json" ] || $B -q eval "${TRACK[@]}" --model "$IL" \
   --seconds "$EVAL_S" --json "$OUT/eval_il_track.json" --png "$OUT/il_track.png"
 
 # IL + DDPG against each replay, the same seed and wall budget; then the rendered track.
@@ -93,7 +100,7 @@ for poses in true est; do
       --minutes "$MINUTES" $ILDDPG_FLAGS --eval-seconds 120 --eval-every 10 \
       --out "$OUT/ddpg_$poses" > "$OUT/ddpg_$poses.log" 2>&1
   fi
-  [ -f "$OUT/eval_ddpg_${poses}_track.json" ] || $B -q eval --config config/sim.toml --reverse \
+  [ -f "$OUT/eval_ddpg_${poses}_track.json" ] || $B -q eval "${TRACK[@]}" \
     --model "$OUT/ddpg_$poses/best.onnx" --seconds "$EVAL_S" \
     --json "$OUT/eval_ddpg_${poses}_track.json" --png "$OUT/ddpg_${poses}_track.png"
 done

@@ -53,6 +53,10 @@ pub struct AppearanceConfig {
     pub blur_probability: f32,
     /// A new look every this many frames as well as at every reset (0: at resets only).
     pub redraw_every_frames: u32,
+    /// A new look at every reset (an episode's start, the car put back after an
+    /// intervention). Off with `redraw_every_frames = 0`: one look for the whole run, as
+    /// one camera in one room (an `eval` in the world a recording was made in).
+    pub redraw_at_reset: bool,
     /// Strength of a linear brightness gradient across the frame (0.5: from 0.5x to 1.5x
     /// between opposite edges), in a random direction.
     pub light_gradient: [f32; 2],
@@ -84,6 +88,7 @@ impl Default for AppearanceConfig {
             noise_std: [0.0, 6.0],
             blur_probability: 0.3,
             redraw_every_frames: 150,
+            redraw_at_reset: true,
             light_gradient: [0.0, 0.5],
             glare_probability: 0.3,
             scene: true,
@@ -364,6 +369,14 @@ impl Appearance {
         &self.look
     }
 
+    /// The car was reset (a new episode, or put back after an intervention): a new look,
+    /// unless `redraw_at_reset` is off.
+    pub fn reset(&mut self) {
+        if self.cfg.redraw_at_reset {
+            self.redraw();
+        }
+    }
+
     /// A new episode: a new look.
     pub fn redraw(&mut self) {
         self.look = Look::draw(&self.cfg, &mut self.rng);
@@ -487,6 +500,24 @@ mod tests {
         assert_eq!(*a.look(), first);
         a.apply(2, 2, &mut rgb);
         assert_ne!(*a.look(), first);
+        // A reset draws a new look, unless redraw_at_reset is off (one look all run).
+        let second = *a.look();
+        a.reset();
+        assert_ne!(*a.look(), second);
+        let mut kept = Appearance::new(
+            AppearanceConfig {
+                redraw_every_frames: 0,
+                redraw_at_reset: false,
+                ..AppearanceConfig::default()
+            },
+            1,
+        );
+        let (look, generation) = (*kept.look(), kept.generation());
+        for _ in 0..400 {
+            kept.apply(2, 2, &mut rgb);
+        }
+        kept.reset();
+        assert_eq!((*kept.look(), kept.generation()), (look, generation));
     }
 
     #[test]

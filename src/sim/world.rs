@@ -163,7 +163,7 @@ impl World {
         self.last_s = self.track.query(pose.x, pose.y).s;
         self.view_valid = true;
         if let Some(a) = self.appearance.as_mut() {
-            a.redraw();
+            a.reset();
         }
     }
 
