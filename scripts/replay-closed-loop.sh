@@ -26,7 +26,7 @@
 # DRIVE_S (default 40: 1.2 laps), EVAL_S (the rendered-track tests, default 600), BIN (a
 # built jetpilot with --features train; default: build target/release/jetpilot),
 # ILDDPG_FLAGS (default: the levers of README's experiment). Steps already done (their
-# output exists) are skipped, so an interrupted run goes on. About 1 h on 2 cores.
+# output is complete) are skipped, so an interrupted run goes on. About 1 h on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-.cache/replay-loop}
@@ -63,10 +63,14 @@ if [ ! -d "$OUT/drive" ]; then
   $B -q sim --config "$OUT/drive.toml" --expert --reverse --randomise --seconds "$DRIVE_S" \
     --swerve-every 3 --record-swerves --record "$OUT/drive" --png "$OUT/drive-png"
 fi
-if [ ! -f "$OUT/il/best.onnx" ]; then
+# Finished when its summary line is in the log (best.onnx appears after the first epoch);
+# an interrupted run resumes after its last finished epoch.
+if ! grep -q '^imitation learning:' "$OUT/il.log" 2> /dev/null; then
   log "imitation learning on the drive ($IL_EPOCHS epochs)"
+  resume=()
+  [ -f "$OUT/il/il_state.json" ] && resume=(--resume)
   $B train il --config "$OUT/sim-noise.toml" --input-size 96 --head speed-steering \
-    --epochs "$IL_EPOCHS" --data "$OUT/drive" --out "$OUT/il" > "$OUT/il.log" 2>&1
+    --epochs "$IL_EPOCHS" --data "$OUT/drive" --out "$OUT/il" "${resume[@]}" >> "$OUT/il.log" 2>&1
 fi
 if [ ! -d "$OUT/drive-est" ]; then
   log "poses"
@@ -93,7 +97,10 @@ done
 
 # IL + DDPG against each replay, the same seed and wall budget; then the rendered track.
 for poses in true est; do
-  if [ ! -f "$OUT/ddpg_$poses/best.onnx" ]; then
+  # last.onnx is written when the run ends (best.onnx at its first evaluation); an
+  # interrupted run starts again.
+  if [ ! -f "$OUT/ddpg_$poses/last.onnx" ]; then
+    rm -rf "$OUT/ddpg_$poses"
     log "IL + DDPG on the $poses poses ($MINUTES min)"
     # shellcheck disable=SC2086
     $B train ddpg --sim "$OUT/path-$poses.toml" --seed 1 --init "$IL" --demos "$OUT/demos" \

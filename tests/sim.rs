@@ -620,23 +620,31 @@ fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("rec.toml");
     std::fs::write(&cfg, "[sim.camera]\nwidth = 32\nheight = 32\n").unwrap();
-    let tub = dir.path().join("demos");
-    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
-        .args([
-            "-q",
-            "sim",
-            "--expert",
+    // `sim --expert --record-every 2 --record DIR` with `args`, into `dir/name`.
+    let record = |name: &str, args: &[&str]| {
+        let tub = dir.path().join(name);
+        let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+            .args(["-q", "sim", "--expert", "--record-every", "2"])
+            .args(args)
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--record")
+            .arg(&tub)
+            .output()
+            .unwrap();
+        (tub, out)
+    };
+    let (tub, out) = record(
+        "demos",
+        &[
             "--seconds",
             "8",
             "--swerve-every",
             "1",
-        ])
-        .args(["--record-every", "2", "--record-frames", "60", "--config"])
-        .arg(&cfg)
-        .arg("--record")
-        .arg(&tub)
-        .output()
-        .unwrap();
+            "--record-frames",
+            "60",
+        ],
+    );
     assert!(
         out.status.success(),
         "{}",
@@ -656,23 +664,7 @@ fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
     let long = gaps.iter().filter(|g| **g > 100).count();
     assert!(long >= 2, "no swerve left out: {gaps:?}");
     // Without swerves the same drive records every 2nd step with no longer gap.
-    let plain = dir.path().join("plain");
-    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
-        .args([
-            "-q",
-            "sim",
-            "--expert",
-            "--seconds",
-            "3",
-            "--record-every",
-            "2",
-        ])
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--record")
-        .arg(&plain)
-        .output()
-        .unwrap();
+    let (plain, out) = record("plain", &["--seconds", "3"]);
     assert!(out.status.success());
     let reader = jetpilot::dataset::tub::TubReader::open(&plain).unwrap();
     let ms: Vec<u64> = reader.records().map(|r| r.timestamp_ms).collect();
@@ -680,22 +672,10 @@ fn recovery_demonstrations_leave_out_the_swerves_and_stop_at_the_frame_count() {
     assert!(ms.windows(2).all(|w| w[1] - w[0] <= 67), "{ms:?}");
     // With --record-swerves the recorder runs through the swerves (a continuous
     // recording, to replay its path): every 2nd step again, though the expert swerved.
-    let all = dir.path().join("all");
-    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
-        .args(["-q", "sim", "--expert", "--seconds", "3"])
-        .args([
-            "--swerve-every",
-            "1",
-            "--record-swerves",
-            "--record-every",
-            "2",
-        ])
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--record")
-        .arg(&all)
-        .output()
-        .unwrap();
+    let (all, out) = record(
+        "all",
+        &["--seconds", "3", "--swerve-every", "1", "--record-swerves"],
+    );
     assert!(
         out.status.success(),
         "{}",

@@ -71,12 +71,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         name.push("-poses");
         args.tub.with_file_name(name)
     });
-    if out.exists() {
-        anyhow::bail!(
-            "{} exists already: give another --out (nothing is overwritten)",
-            out.display()
-        );
-    }
+    output::refuse_existing(&out)?;
     let est = odometry::estimate(
         &tub,
         &sim.camera,
@@ -132,11 +127,8 @@ fn check_against_truth(
             args.tub.display()
         );
     };
-    if let Some(out) = args.out.as_ref().filter(|o| o.exists()) {
-        anyhow::bail!(
-            "{} exists already: give another --out (nothing is overwritten)",
-            out.display()
-        );
+    if let Some(out) = &args.out {
+        output::refuse_existing(out)?;
     }
     let opts = ReadOptions {
         every: args.every,

@@ -27,6 +27,18 @@ pub fn partial_dir(out: &Path) -> PathBuf {
     out.with_file_name(name)
 }
 
+/// An error naming `out` if it exists: nothing is overwritten (checked before the
+/// estimate is run, and again before writing).
+pub fn refuse_existing(out: &Path) -> Result<(), SimError> {
+    if out.exists() {
+        return Err(file_err(
+            out,
+            "exists already: give another --out (nothing is overwritten)",
+        ));
+    }
+    Ok(())
+}
+
 /// What of a record besides its frame and commands goes into the new tub.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Labels {
@@ -46,12 +58,7 @@ pub fn write_tub(
     created_at: f64,
     labels: Labels,
 ) -> Result<usize, SimError> {
-    if out.exists() {
-        return Err(file_err(
-            out,
-            "exists already: give another --out (nothing is overwritten)",
-        ));
-    }
+    refuse_existing(out)?;
     let partial = partial_dir(out);
     if partial.exists() {
         // A previous interrupted run's output: never read as a tub, safe to replace.
