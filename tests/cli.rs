@@ -122,6 +122,67 @@ fn stop_command_writes_a_stop() {
     assert!(!lines(&log).is_empty());
 }
 
+/// The write end of a pipe whose reader is already gone: a write to it fails with EPIPE
+/// (or raises SIGPIPE), as when `jetpilot ... | head` has read its lines.
+fn pipe_without_reader() -> Stdio {
+    use std::os::fd::{FromRawFd, OwnedFd};
+    let mut fds = [0; 2];
+    // SAFETY: pipe() fills two new descriptors, each owned exactly once below.
+    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    drop(read);
+    Stdio::from(write)
+}
+
+#[test]
+fn an_offline_command_ends_quietly_when_its_reader_goes_away() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let out = jetpilot()
+        .args(["samples", "--count", "2", "--out"])
+        .arg(dir.path())
+        .stdout(pipe_without_reader())
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.signal(), Some(libc::SIGPIPE), "{err}");
+    // The frames were written before the line that could not be printed.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+}
+
+#[test]
+fn the_daemon_commands_stop_the_motors_and_exit_cleanly_when_stdout_is_gone() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 64, 1);
+    let frames = common::write_frames(dir.path(), 6);
+    let log = dir.path().join("motors.jsonl");
+    let cfg = write_config(dir.path(), &model, &frames, &log);
+    for args in [
+        &["run", "--duration", "1", "--config"][..],
+        &["stop", "--config"][..],
+    ] {
+        let out = jetpilot()
+            .args(args)
+            .arg(&cfg)
+            .stdout(pipe_without_reader())
+            .output()
+            .unwrap();
+        let err = stderr(&out);
+        assert!(out.status.success(), "{args:?}: {:?} {err}", out.status);
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        let all = lines(&log);
+        assert!(
+            all.last().is_some_and(|l| l.contains("\"stop\":true")),
+            "{args:?}: {all:?}"
+        );
+    }
+    assert!(
+        lines(&log).iter().any(|l| l.contains("left")),
+        "the run drove"
+    );
+}
+
 #[test]
 fn malformed_config_names_file_key_and_allowed_values() {
     let dir = tempfile::tempdir().unwrap();

@@ -112,6 +112,9 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     init_tracing(cli.verbose, cli.quiet);
     install_panic_hook();
+    if !drives_motors(&cli.command) {
+        die_quietly_on_closed_pipe();
+    }
     let result = match cli.command {
         Command::Run(args) => run::run(args),
         Command::Record(args) => run::record(args),
@@ -182,6 +185,38 @@ fn init_tracing(verbose: u8, quiet: bool) {
 
 /// Panics are logged through tracing (so they reach the journal) before the default report.
 /// The motors are released by the motor output's `Drop` while the panic unwinds.
+/// The commands that drive (or release) real motors. They keep Rust's SIGPIPE setting
+/// (ignored: a write to a closed pipe is an error), so a reader going away can never end the
+/// process before its motors are stopped; they print through [`say`].
+fn drives_motors(command: &Command) -> bool {
+    matches!(
+        command,
+        Command::Run(_) | Command::Record(_) | Command::Stop { .. }
+    )
+}
+
+/// The offline commands behave like other Unix tools when their reader goes away
+/// (`jetpilot score ... | head`): the kernel ends the process quietly with SIGPIPE, instead of
+/// `println!` panicking on "Broken pipe". None of them writes to a child's stdin, and sockets
+/// are written with MSG_NOSIGNAL by std, so only stdout and stderr are affected.
+fn die_quietly_on_closed_pipe() {
+    // SAFETY: restores the default disposition of one signal before any thread that could
+    // be handling it exists; no Rust invariant depends on SIGPIPE being ignored.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+/// One line on stdout for the daemon's commands: a closed pipe loses the line (noted at
+/// debug level), it never panics.
+pub(crate) fn say(line: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_fmt(line).and_then(|_| out.write_all(b"\n")) {
+        tracing::debug!(error = %e, "stdout closed; line not printed");
+    }
+}
+
 fn install_panic_hook() {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {

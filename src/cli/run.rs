@@ -72,7 +72,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let policy = setup::load_policy(&cfg, args.model.as_deref())?;
     let source = setup::open_source(&cfg, clock.clone())?;
     if args.dry_run {
-        println!("{}", pipeline(&cfg, &policy, source.describe()));
+        super::say(format_args!(
+            "{}",
+            pipeline(&cfg, &policy, source.describe())
+        ));
         return Ok(ExitCode::SUCCESS);
     }
     let model = args.model.clone().unwrap_or_else(|| cfg.model.path.clone());
@@ -283,11 +286,11 @@ fn drive_with(
                 RunEnd::Shutdown => "stopped",
                 RunEnd::SourceFinished => "frame source finished",
             };
-            println!("{why}: {report}");
+            super::say(format_args!("{why}: {report}"));
             Ok(ExitCode::SUCCESS)
         }
         Err((e, report)) => {
-            println!("fault: {report}");
+            super::say(format_args!("fault: {report}"));
             Err(e.into())
         }
     }
@@ -379,6 +382,6 @@ pub fn stop(config: &Path) -> anyhow::Result<ExitCode> {
     // Opening initialises the HAT and releases both motors; stop once more to be explicit.
     let mut motors = setup::open_motors(&cfg, clock)?;
     motors.stop()?;
-    println!("motors stopped ({})", motors.describe());
+    super::say(format_args!("motors stopped ({})", motors.describe()));
     Ok(ExitCode::SUCCESS)
 }
