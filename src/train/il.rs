@@ -594,7 +594,7 @@ mod tests {
             ..IlOptions::paper(dir.path().join(out), contract.clone(), labels)
         };
         let mut straight = Vec::new();
-        train(&data, &opts("a", 3, false), |e| {
+        train(&data, &opts("a", 2, false), |e| {
             straight.push((e.train_loss, e.test_loss))
         })
         .unwrap();
@@ -603,7 +603,7 @@ mod tests {
             broken.push((e.train_loss, e.test_loss))
         })
         .unwrap();
-        train(&data, &opts("b", 3, true), |e| {
+        train(&data, &opts("b", 2, true), |e| {
             broken.push((e.train_loss, e.test_loss))
         })
         .unwrap();
@@ -614,7 +614,7 @@ mod tests {
         })
         .unwrap();
         std::fs::remove_file(optim_path(&dir.path().join("c"))).unwrap();
-        train(&data, &opts("c", 3, true), |e| {
+        train(&data, &opts("c", 2, true), |e| {
             reset.push((e.train_loss, e.test_loss))
         })
         .unwrap();
