@@ -183,8 +183,6 @@ fn init_tracing(verbose: u8, quiet: bool) {
     }
 }
 
-/// Panics are logged through tracing (so they reach the journal) before the default report.
-/// The motors are released by the motor output's `Drop` while the panic unwinds.
 /// The commands that drive (or release) real motors. They keep Rust's SIGPIPE setting
 /// (ignored: a write to a closed pipe is an error), so a reader going away can never end the
 /// process before its motors are stopped; they print through [`say`].
@@ -217,6 +215,8 @@ pub(crate) fn say(line: std::fmt::Arguments<'_>) {
     }
 }
 
+/// Panics are logged through tracing (so they reach the journal) before the default report.
+/// The motors are released by the motor output's `Drop` while the panic unwinds.
 fn install_panic_hook() {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
