@@ -28,7 +28,9 @@ set -e
 # nextest's last line: "Summary [ 423.554s] 543 tests run: 543 passed, 2 skipped"
 summary=$(grep -E '^ *Summary \[' "$LOG" | tail -n 1 || true)
 passed=$(grep -Eo '[0-9]+ passed' <<<"$summary" | grep -Eo '[0-9]+' || echo 0)
-failed=$(grep -Eo '[0-9]+ failed' <<<"$summary" | grep -Eo '[0-9]+' || echo 0)
+# A test killed by the slow-timeout is listed as "N timed out", not "failed": both count.
+failed=$(awk '{ for (i = 2; i <= NF; i++) if ($i ~ /^failed/ || ($i == "timed" && $(i + 1) ~ /^out/)) s += $(i - 1) }
+  END { print s + 0 }' <<<"$summary")
 echo
 echo "total: $passed passed, $failed failed"
 exit "$status"
