@@ -16,7 +16,9 @@
 # "il ilddpg ddpg"), TRACK_FILTER (a grep -E pattern on the track names), ILDDPG_FLAGS,
 # CFG (the sim config), CAMERA (default pinhole: the 120-degree pinhole README's results
 # used; jetbot for JetBot's fisheye, the config's default), BIN (a built jetpilot: no build, so a long run is not disturbed by
-# rebuilding the checkout it runs from).
+# rebuilding the checkout it runs from), REUSE_IL (the OUT of an earlier run: its demos and
+# imitation policies are reused, each charged the wall time it took then, from
+# il_<seed>.seconds, so a later IL + DDPG run starts from the very policy the IL row scored).
 #
 # The demonstrations are recorded once, on the default track (the JetBot mat driven
 # counter-clockwise), and are the same for every method and track, so the question is
@@ -71,6 +73,10 @@ else
   B=target/release/jetpilot
 fi
 
+if [ -n "${REUSE_IL:-}" ] && [ "$(realpath -m "$REUSE_IL")" = "$(realpath -m "$OUT")" ]; then
+  echo "REUSE_IL must name another run's folder, not OUT ($OUT), which this run clears" >&2
+  exit 1
+fi
 rm -rf "$OUT"
 mkdir -p "$OUT"
 M="$OUT/manifest.toml"
@@ -85,16 +91,29 @@ now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 
 # 331 frames over about 1.2 laps of the default track, with recoveries (as scripts/train-e2e.sh).
-$B sim --config "$CFG" "${CAM[@]}" --expert --seconds 60 --swerve-every 3 --record-every 3 \
-  --record-frames 331 --record "$OUT/demos" > "$OUT/demos.log"
+if [ -n "${REUSE_IL:-}" ]; then
+  [ -d "$REUSE_IL/demos" ] || { echo "REUSE_IL=$REUSE_IL has no demos/ folder" >&2; exit 1; }
+  cp -r "$REUSE_IL/demos" "$OUT/demos"
+  echo "# demonstrations and imitation policies reused from $REUSE_IL" >> "$M"
+else
+  $B sim --config "$CFG" "${CAM[@]}" --expert --seconds 60 --swerve-every 3 --record-every 3 \
+    --record-frames 331 --record "$OUT/demos" > "$OUT/demos.log"
+fi
 
 for seed in $SEEDS; do
   il_s=0
-  if runs il || runs ilddpg; then
+  if [ -n "${REUSE_IL:-}" ] && { runs il || runs ilddpg; }; then
+    for f in "$REUSE_IL/il_$seed/best.onnx" "$REUSE_IL/il_$seed.seconds"; do
+      [ -f "$f" ] || { echo "REUSE_IL: $f is missing" >&2; exit 1; }
+    done
+    cp -r "$REUSE_IL/il_$seed" "$REUSE_IL/il_$seed.seconds" "$OUT/"
+    il_s=$(cat "$OUT/il_$seed.seconds")
+  elif runs il || runs ilddpg; then
     t0=$(now)
     $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
       --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
     il_s=$(since "$t0")
+    echo "$il_s" > "$OUT/il_$seed.seconds"
   fi
   left_min=$(awk -v m="$BUDGET_MIN" -v s="$il_s" 'BEGIN { printf "%.2f", m - s / 60 }')
   echo "seed $seed: imitation learning took $il_s s; IL + DDPG gets $left_min more minutes"
