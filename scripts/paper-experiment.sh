@@ -106,18 +106,19 @@ fi
 
 for seed in $SEEDS; do
   il_s=0
-  if [ -n "${REUSE_IL:-}" ] && { runs il || runs ilddpg; }; then
-    for f in "$REUSE_IL/il_$seed/best.onnx" "$REUSE_IL/il_$seed.seconds"; do
-      [ -f "$f" ] || { echo "REUSE_IL: $f is missing" >&2; exit 1; }
-    done
-    cp -r "$REUSE_IL/il_$seed" "$REUSE_IL/il_$seed.seconds" "$OUT/"
+  if runs il || runs ilddpg; then
+    if [ -n "${REUSE_IL:-}" ]; then
+      for f in "$REUSE_IL/il_$seed/best.onnx" "$REUSE_IL/il_$seed.seconds"; do
+        [ -f "$f" ] || { echo "REUSE_IL: $f is missing" >&2; exit 1; }
+      done
+      cp -r "$REUSE_IL/il_$seed" "$REUSE_IL/il_$seed.seconds" "$OUT/"
+    else
+      t0=$(now)
+      $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
+        --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
+      echo "$(since "$t0")" > "$OUT/il_$seed.seconds"
+    fi
     il_s=$(cat "$OUT/il_$seed.seconds")
-  elif runs il || runs ilddpg; then
-    t0=$(now)
-    $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
-      --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
-    il_s=$(since "$t0")
-    echo "$il_s" > "$OUT/il_$seed.seconds"
   fi
   left_min=$(awk -v m="$BUDGET_MIN" -v s="$il_s" 'BEGIN { printf "%.2f", m - s / 60 }')
   echo "seed $seed: imitation learning took $il_s s; IL + DDPG gets $left_min more minutes"
