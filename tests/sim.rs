@@ -486,6 +486,78 @@ fn scene_randomisation_repaints_the_road_at_each_episode_and_repeats_for_a_seed(
 }
 
 #[test]
+fn a_tilt_range_moves_the_camera_with_each_look_and_the_labels_go_through_it() {
+    // JetBot's camera mount is bent by hand: with `camera_tilt_deg` each look draws a tilt,
+    // the renderer moves its camera, and every step reports the camera it saw through.
+    let cfg = small_config(
+        "[sim.appearance]\nenabled = true\nredraw_every_frames = 30\n\
+         camera_tilt_deg = [15.0, 40.0]",
+    );
+    let mut rig = setup::build(&cfg).unwrap();
+    let mut rgb = vec![0u8; 48 * 48 * 3];
+    let mut tilts = Vec::new();
+    for k in 0..8 {
+        rig.world.reset_at(0.3 * k as f32);
+        rig.world.observe(&mut rgb);
+        let tilt = rig.world.camera().tilt_deg;
+        let drawn = rig.world.appearance().and_then(|a| a.look().tilt_deg);
+        assert_eq!(
+            Some(tilt),
+            drawn,
+            "episode {k}: the renderer's camera is the look's"
+        );
+        assert!((15.0..40.0).contains(&tilt), "episode {k}: {tilt}");
+        tilts.push(tilt);
+    }
+    let spread = tilts.iter().cloned().fold(f32::MIN, f32::max)
+        - tilts.iter().cloned().fold(f32::MAX, f32::min);
+    assert!(spread > 8.0, "8 looks: {tilts:?}");
+    // In the closed loop, looks change every 30 steps, and so does the camera each step
+    // reports; the expert's target projects through it (what --record-xy writes).
+    let mut pilot = Pilot::expert(cfg.sim.expert, 0);
+    let mut seen: Vec<(f32, Option<(f32, f32)>)> = Vec::new();
+    closed_loop::run(
+        &mut rig.world,
+        &mut rig.motors,
+        &mut pilot,
+        &cfg.sim.loop_settings(4.0, &cfg),
+        (48, 48),
+        |s| {
+            let label = s
+                .expert
+                .and_then(|a| jetpilot::sim::expert::target_label(&s.camera, &s.pose, a.target));
+            seen.push((s.camera.tilt_deg, label));
+        },
+    )
+    .unwrap();
+    assert_eq!(seen.len(), 120);
+    let mut changes = 0;
+    for w in seen.windows(2) {
+        changes += usize::from(w[0].0 != w[1].0);
+    }
+    assert!(
+        (2..=4).contains(&changes),
+        "4 looks in 120 steps: {changes} changes"
+    );
+    // Tilted down more, the target ahead sits higher in the frame: over the looks the
+    // label's row falls as the tilt rises.
+    let (lo, hi) = seen.iter().filter_map(|&(t, l)| l.map(|l| (t, l.1))).fold(
+        ((f32::MAX, 0.0), (f32::MIN, 0.0)),
+        |(lo, hi), (t, y)| {
+            (
+                if t < lo.0 { (t, y) } else { lo },
+                if t > hi.0 { (t, y) } else { hi },
+            )
+        },
+    );
+    assert!(hi.0 - lo.0 > 3.0 && hi.1 < lo.1, "tilt {lo:?} vs {hi:?}");
+    // Randomisation off: the configured tilt again.
+    rig.world.set_appearance(None);
+    rig.world.observe(&mut rgb);
+    assert_eq!(rig.world.camera().tilt_deg, cfg.sim.camera.tilt_deg);
+}
+
+#[test]
 fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     let dir = tempfile::tempdir().unwrap();
     let model = common::write_model(dir.path(), 48, 4);

@@ -397,14 +397,8 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         Some(dir) => {
             let now = super::unix_now();
             Some(
-                DemoRecorder::create(
-                    dir,
-                    args.record_xy.as_deref(),
-                    cfg.sim.camera,
-                    now,
-                    cfg.sim.seed,
-                )?
-                .record_swerves(args.record_swerves),
+                DemoRecorder::create(dir, args.record_xy.as_deref(), now, cfg.sim.seed)?
+                    .record_swerves(args.record_swerves),
             )
         }
         None => None,

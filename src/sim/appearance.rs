@@ -74,6 +74,10 @@ pub struct AppearanceConfig {
     pub colour_jitter: f32,
     /// Number of blocks (furniture, people) beyond the mat, `[least, most]`.
     pub clutter: [u32; 2],
+    /// The camera's tilt below the horizontal, degrees, drawn with each look (rendered
+    /// frames only; unset: `[sim.camera] tilt_deg` throughout). JetBot's camera mount is
+    /// bent by hand: the real frames show it from about 15 to 37 degrees.
+    pub camera_tilt_deg: Option<[f32; 2]>,
 }
 
 impl Default for AppearanceConfig {
@@ -97,6 +101,7 @@ impl Default for AppearanceConfig {
             line_width_scale: [0.6, 1.6],
             colour_jitter: 0.15,
             clutter: [0, 6],
+            camera_tilt_deg: None,
         }
     }
 }
@@ -152,6 +157,13 @@ impl AppearanceConfig {
                 "clutter = [{lo}, {hi}] must satisfy low <= high <= 64"
             ));
         }
+        if let Some([lo, hi]) = self.camera_tilt_deg
+            && !(lo.is_finite() && hi.is_finite() && -80.0 <= lo && lo <= hi && hi <= 80.0)
+        {
+            return bad(format!(
+                "camera_tilt_deg = [{lo}, {hi}] must satisfy -80 <= low <= high <= 80"
+            ));
+        }
         Ok(())
     }
 }
@@ -172,6 +184,8 @@ pub struct Look {
     /// A glare patch: centre `(u, v)` in pixels, radius (the Gaussian's sigma) in pixels,
     /// and its peak, added to 0..1 values.
     pub glare: Option<Glare>,
+    /// The camera's tilt below the horizontal, degrees (`None`: the configured camera's).
+    pub tilt_deg: Option<f32>,
 }
 
 /// A bright Gaussian patch (a lamp's reflection on a glossy mat).
@@ -195,6 +209,7 @@ impl Look {
         blur: false,
         gradient: [0.0, 0.0],
         glare: None,
+        tilt_deg: None,
     };
 
     /// Draws a look from `cfg`'s ranges.
@@ -237,6 +252,14 @@ impl Look {
             radius: rng.random_range(0.04..0.2),
             peak: rng.random_range(0.2..0.8),
         });
+        // Drawn last, and only when asked for, so every other draw stays as it was.
+        let tilt_deg = cfg.camera_tilt_deg.map(|[lo, hi]| {
+            if hi > lo {
+                rng.random_range(lo..hi)
+            } else {
+                lo
+            }
+        });
         Self {
             gains,
             exposure,
@@ -246,6 +269,7 @@ impl Look {
             blur,
             gradient,
             glare,
+            tilt_deg,
         }
     }
 
@@ -518,6 +542,48 @@ mod tests {
         }
         kept.reset();
         assert_eq!((*kept.look(), kept.generation()), (look, generation));
+    }
+
+    #[test]
+    fn a_camera_tilt_range_is_drawn_last_and_leaves_every_other_draw_alone() {
+        let plain = AppearanceConfig::default();
+        let tilted = AppearanceConfig {
+            camera_tilt_deg: Some([15.0, 40.0]),
+            ..plain
+        };
+        let (mut a, mut b) = (ChaCha8Rng::seed_from_u64(5), ChaCha8Rng::seed_from_u64(5));
+        let mut tilts = Vec::new();
+        for _ in 0..100 {
+            let (p, t) = (Look::draw(&plain, &mut a), Look::draw(&tilted, &mut b));
+            assert_eq!(p.tilt_deg, None);
+            let tilt = t.tilt_deg.unwrap();
+            assert!((15.0..40.0).contains(&tilt), "{tilt}");
+            assert_eq!(
+                Look {
+                    tilt_deg: None,
+                    ..t
+                },
+                p
+            );
+            tilts.push(tilt);
+            // Keep the two streams level: the tilted draw took one number more.
+            let _: f32 = a.random();
+        }
+        let spread = tilts.iter().cloned().fold(f32::MIN, f32::max)
+            - tilts.iter().cloned().fold(f32::MAX, f32::min);
+        assert!(spread > 20.0, "{spread}");
+        // A fixed tilt is a one-point range.
+        let fixed = AppearanceConfig {
+            camera_tilt_deg: Some([20.0, 20.0]),
+            ..plain
+        };
+        assert_eq!(Look::draw(&fixed, &mut a).tilt_deg, Some(20.0));
+        let bad = AppearanceConfig {
+            camera_tilt_deg: Some([30.0, 10.0]),
+            ..plain
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("camera_tilt_deg"), "{e}");
     }
 
     #[test]

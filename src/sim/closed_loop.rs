@@ -11,6 +11,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::Pose2;
+use super::camera::CameraModel;
 use super::expert::{ExpertAction, ExpertParams, Swerves, pursue};
 use super::world::{StepScore, World};
 use crate::camera::Frame;
@@ -64,6 +65,8 @@ pub struct StepRecord<'a> {
     /// The robot's pose when the frame was taken.
     pub pose: Pose2,
     pub frame: &'a Frame,
+    /// The camera the frame was taken through (a randomised look may tilt it).
+    pub camera: CameraModel,
     pub wheels: WheelCommand,
     /// The model's raw outputs (model pilot).
     pub outputs: Option<[f32; 2]>,
@@ -114,6 +117,7 @@ pub fn run(
                     pixels = Arc::new(buf);
                 }
             }
+            let camera = *world.camera();
             let frame = Frame {
                 seq,
                 captured_at: clock.now(),
@@ -166,6 +170,7 @@ pub fn run(
                 time: frame.captured_at,
                 pose,
                 frame: &frame,
+                camera,
                 wheels,
                 outputs,
                 expert,

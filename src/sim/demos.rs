@@ -16,13 +16,11 @@ use super::expert::target_label;
 use crate::dataset::tub::{DriveMode, TubInputs, TubRecord, TubWriter};
 use crate::dataset::{DatasetError, jetbot_xy};
 use crate::drive::recorder::angle_throttle;
-use crate::sim::camera::CameraModel;
 
 /// Records simulated steps.
 pub struct DemoRecorder {
     tub: TubWriter,
     xy_dir: Option<std::path::PathBuf>,
-    camera: CameraModel,
     rng: ChaCha8Rng,
     jpeg: Vec<u8>,
     written: u64,
@@ -31,11 +29,11 @@ pub struct DemoRecorder {
 
 impl DemoRecorder {
     /// `created_at` (Unix seconds) stamps the tub's session; `xy_dir` also writes JetBot's
-    /// format (one file per step whose target point is in view).
+    /// format (one file per step whose target point is in view, through the camera the step
+    /// saw through).
     pub fn create(
         tub_dir: &Path,
         xy_dir: Option<&Path>,
-        camera: CameraModel,
         created_at: f64,
         seed: u64,
     ) -> Result<Self, DatasetError> {
@@ -48,7 +46,6 @@ impl DemoRecorder {
         Ok(Self {
             tub: TubWriter::create(tub_dir, &TubInputs::ALL, created_at)?,
             xy_dir: xy_dir.map(Path::to_path_buf),
-            camera,
             rng: ChaCha8Rng::seed_from_u64(seed),
             jpeg: Vec::new(),
             written: 0,
@@ -95,7 +92,7 @@ impl DemoRecorder {
         }
         let label = step
             .expert
-            .and_then(|a| target_label(&self.camera, &step.pose, a.target));
+            .and_then(|a| target_label(&step.camera, &step.pose, a.target));
         rec.target = label;
         self.tub.append(&rec, &self.jpeg)?;
         if let (Some(dir), Some((x, y))) = (&self.xy_dir, label) {

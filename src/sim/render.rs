@@ -494,7 +494,8 @@ pub struct Renderer {
     camera: CameraModel,
     /// One entry per pixel, row-major.
     rays: Vec<PixelRay>,
-    /// Wall colour per image row.
+    /// The wall's colour, and its shade per image row.
+    wall_rgb: [u8; 3],
     wall_rows: Vec<[u8; 3]>,
     /// Per-pixel colours beyond the ground (RGB8, a whole frame), instead of `wall_rows`.
     backdrop: Option<Vec<u8>>,
@@ -520,70 +521,78 @@ fn footprint(camera: &CameraModel, u: f32, v: f32, g: (f32, f32)) -> Option<[(f3
     Some([du, dv])
 }
 
+/// For every pixel of `camera`, row-major: where its ray meets the ground (robot frame),
+/// and how to filter the texture over its footprint.
+fn ray_table(texture: &MatTexture, camera: &CameraModel) -> Vec<PixelRay> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let max_level = (NUM_LEVELS - 1) as f32;
+    let ppm = texture.px_per_m;
+    let mut rays = Vec::with_capacity(w * h);
+    for j in 0..h {
+        for i in 0..w {
+            let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
+            let Some(g) = camera.pixel_to_robot_ground(u, v) else {
+                rays.push(PixelRay::default());
+                continue;
+            };
+            let Some([du, dv]) = footprint(camera, u, v, g) else {
+                rays.push(PixelRay {
+                    fwd: g.0,
+                    left: g.1,
+                    level: (NUM_LEVELS - 1) as u8,
+                    probes: 1,
+                    ..PixelRay::default()
+                });
+                continue;
+            };
+            let len_u = du.0.hypot(du.1);
+            let len_v = dv.0.hypot(dv.1);
+            let (major, major_len) = if len_v >= len_u {
+                (dv, len_v)
+            } else {
+                (du, len_u)
+            };
+            let area = (du.0 * dv.1 - du.1 * dv.0).abs();
+            let minor_len = (area / major_len.max(1e-12)).max(1e-9);
+            // Filter size: the short axis, but no finer than a texel and no finer than
+            // the long axis split among the most probes; probes cover the long axis.
+            let texel = 1.0 / ppm;
+            let size = minor_len.max(texel).max(major_len / MAX_PROBES as f32);
+            let probes = ((major_len / size).round() as u32).clamp(1, MAX_PROBES);
+            let lod = (size * ppm).log2().clamp(0.0, max_level);
+            let level = (lod.floor() as usize).min(NUM_LEVELS - 1);
+            let frac = if level + 1 < NUM_LEVELS {
+                lod - level as f32
+            } else {
+                0.0
+            };
+            let n = probes as f32;
+            let step = (major.0 / n, major.1 / n);
+            let start = (n - 1.0) / 2.0;
+            rays.push(PixelRay {
+                fwd: g.0 - start * step.0,
+                left: g.1 - start * step.1,
+                step_fwd: step.0,
+                step_left: step.1,
+                tri: (frac * TRI_ONE as f32).round() as u8,
+                level: level as u8,
+                probes: probes as u8,
+            });
+        }
+    }
+    rays
+}
+
 impl Renderer {
     /// Builds the per-pixel ray table for `camera` (validated) over `texture`.
     pub fn new(texture: MatTexture, camera: CameraModel) -> Result<Self, SimError> {
         camera.validate()?;
-        let (w, h) = (camera.width as usize, camera.height as usize);
-        let max_level = (NUM_LEVELS - 1) as f32;
-        let ppm = texture.px_per_m;
-        let mut rays = Vec::with_capacity(w * h);
-        for j in 0..h {
-            for i in 0..w {
-                let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
-                let Some(g) = camera.pixel_to_robot_ground(u, v) else {
-                    rays.push(PixelRay::default());
-                    continue;
-                };
-                let Some([du, dv]) = footprint(&camera, u, v, g) else {
-                    rays.push(PixelRay {
-                        fwd: g.0,
-                        left: g.1,
-                        level: (NUM_LEVELS - 1) as u8,
-                        probes: 1,
-                        ..PixelRay::default()
-                    });
-                    continue;
-                };
-                let len_u = du.0.hypot(du.1);
-                let len_v = dv.0.hypot(dv.1);
-                let (major, major_len) = if len_v >= len_u {
-                    (dv, len_v)
-                } else {
-                    (du, len_u)
-                };
-                let area = (du.0 * dv.1 - du.1 * dv.0).abs();
-                let minor_len = (area / major_len.max(1e-12)).max(1e-9);
-                // Filter size: the short axis, but no finer than a texel and no finer than
-                // the long axis split among the most probes; probes cover the long axis.
-                let texel = 1.0 / ppm;
-                let size = minor_len.max(texel).max(major_len / MAX_PROBES as f32);
-                let probes = ((major_len / size).round() as u32).clamp(1, MAX_PROBES);
-                let lod = (size * ppm).log2().clamp(0.0, max_level);
-                let level = (lod.floor() as usize).min(NUM_LEVELS - 1);
-                let frac = if level + 1 < NUM_LEVELS {
-                    lod - level as f32
-                } else {
-                    0.0
-                };
-                let n = probes as f32;
-                let step = (major.0 / n, major.1 / n);
-                let start = (n - 1.0) / 2.0;
-                rays.push(PixelRay {
-                    fwd: g.0 - start * step.0,
-                    left: g.1 - start * step.1,
-                    step_fwd: step.0,
-                    step_left: step.1,
-                    tri: (frac * TRI_ONE as f32).round() as u8,
-                    level: level as u8,
-                    probes: probes as u8,
-                });
-            }
-        }
+        let rays = ray_table(&texture, &camera);
         let mut renderer = Self {
             texture,
             camera,
             rays,
+            wall_rgb: DEFAULT_WALL_RGB,
             wall_rows: Vec::new(),
             backdrop: None,
         };
@@ -591,9 +600,28 @@ impl Renderer {
         Ok(renderer)
     }
 
+    /// Moves the camera (another tilt, height or lens, same image size): the ray table and
+    /// the wall's shading are built again (a few milliseconds at 224x224). The backdrop,
+    /// drawn for the old camera, is dropped; the caller sets one for the new camera.
+    pub fn set_camera(&mut self, camera: CameraModel) -> Result<(), SimError> {
+        camera.validate()?;
+        if (camera.width, camera.height) != (self.camera.width, self.camera.height) {
+            return Err(SimError::Invalid(format!(
+                "a {}x{} camera for a renderer of {}x{} frames",
+                camera.width, camera.height, self.camera.width, self.camera.height
+            )));
+        }
+        self.rays = ray_table(&self.texture, &camera);
+        self.camera = camera;
+        self.backdrop = None;
+        self.set_wall_rgb(self.wall_rgb);
+        Ok(())
+    }
+
     /// Sets the wall colour (seen above the horizon): `rgb` scaled by 0.95 at the horizon,
     /// brightening linearly to 1.10 at the top of the image.
     pub fn set_wall_rgb(&mut self, rgb: [u8; 3]) {
+        self.wall_rgb = rgb;
         let h = self.camera.height as usize;
         let horizon = self.camera.horizon_v().max(1.0);
         self.wall_rows = (0..h)
@@ -1019,6 +1047,39 @@ mod tests {
                 "{d} m ahead: pinhole ({up}, {vp}) vs ({u}, {v})"
             );
         }
+    }
+
+    #[test]
+    fn a_moved_camera_renders_as_a_renderer_built_for_it() {
+        let tex = MatTexture::with_defaults(&straight_road(), MAT).unwrap();
+        let (low, high) = (
+            CameraModel::jetbot(224, 224),
+            CameraModel {
+                tilt_deg: 18.0,
+                ..CameraModel::jetbot(224, 224)
+            },
+        );
+        let mut moved = Renderer::new(tex.clone(), low).unwrap();
+        moved.set_wall_rgb([90, 120, 150]);
+        moved.set_camera(high).unwrap();
+        let mut built = Renderer::new(tex, high).unwrap();
+        built.set_wall_rgb([90, 120, 150]);
+        let pose = Pose2::new(0.9, 0.5, FRAC_PI_2);
+        let (mut a, mut b) = (vec![0u8; moved.frame_len()], vec![0u8; built.frame_len()]);
+        moved.render(&pose, &mut a);
+        built.render(&pose, &mut b);
+        assert_eq!(a, b);
+        assert_eq!(moved.camera().tilt_deg, 18.0);
+        // Tilted up, more of the frame is wall: the horizon is lower.
+        assert!(high.horizon_v() > low.horizon_v() + 30.0);
+        // Another frame size is refused, naming both.
+        let small = CameraModel {
+            width: 96,
+            height: 96,
+            ..high
+        };
+        let e = moved.set_camera(small).unwrap_err().to_string();
+        assert!(e.contains("96x96") && e.contains("224x224"), "{e}");
     }
 
     #[test]

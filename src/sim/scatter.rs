@@ -78,7 +78,8 @@ pub struct ScatterSummary {
 /// Renders `n` scattered samples through `world` (a new look and scene per sample when its
 /// appearance is randomised) and writes them to `dir` as `xy_XXX_YYY_<uuid>.jpg`. Poses whose
 /// target is out of view are drawn again, up to 20 tries per sample; `keep` sees each
-/// written frame (RGB) and its pixel label.
+/// written frame (RGB) and its pixel label. `camera` gives the frame size; labels go
+/// through the camera each frame was taken with ([`World::camera`]: a look may tilt it).
 pub fn write_scattered(
     world: &mut World,
     camera: &CameraModel,
@@ -100,12 +101,13 @@ pub fn write_scattered(
     while summary.written < n && summary.written + summary.out_of_view < tries {
         let pose = sample_pose(&world.track, p, &mut rng);
         let goal = target(&world.track, &pose, p.lookahead_m);
-        let Some((x, y)) = target_label(camera, &pose, goal) else {
+        world.place(pose);
+        world.observe(&mut frame);
+        // Through the camera the frame was taken with (a look may tilt it).
+        let Some((x, y)) = target_label(world.camera(), &pose, goal) else {
             summary.out_of_view += 1;
             continue;
         };
-        world.place(pose);
-        world.observe(&mut frame);
         crate::dataset::encode_jpeg(&frame, camera.width, camera.height, &mut jpeg).map_err(
             |source| DatasetError::Image {
                 path: "(simulated frame)".into(),

@@ -89,6 +89,8 @@ pub struct World {
     layouts: Option<Layouts>,
     /// The track changed since the renderer's mat was painted.
     track_changed: bool,
+    /// The configured camera's tilt, for looks that do not draw one.
+    base_tilt_deg: f32,
 }
 
 /// The layout generator's settings, its own random stream (so turning layouts on leaves
@@ -134,6 +136,10 @@ impl World {
         seed: u64,
     ) -> Self {
         let start = track.lane_pose_at(0.0);
+        let base_tilt_deg = match &frames {
+            FrameMaker::Render(r) => r.camera().tilt_deg,
+            FrameMaker::Replay(s) => s.camera().tilt_deg,
+        };
         let mut w = Self {
             robot: Robot::new(robot, start),
             track,
@@ -151,6 +157,7 @@ impl World {
             painted: None,
             layouts: None,
             track_changed: false,
+            base_tilt_deg,
         };
         w.reset_at(0.0);
         w
@@ -182,6 +189,9 @@ impl World {
     /// Randomises the camera's look from now on (`None`: plain frames).
     pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
         self.appearance = appearance;
+        if let Err(e) = self.tilt_camera() {
+            tracing::warn!("camera tilt: {e}; keeping the camera's tilt");
+        }
     }
 
     /// Draws random track layouts from now on (`None`: keep the track), starting with one
@@ -250,6 +260,15 @@ impl World {
         self.robot.pose
     }
 
+    /// The camera the last [`Self::observe`] saw through (a look may tilt it: JetBot
+    /// target labels must be projected through this one).
+    pub fn camera(&self) -> &super::camera::CameraModel {
+        match &self.frames {
+            FrameMaker::Render(r) => r.camera(),
+            FrameMaker::Replay(s) => s.camera(),
+        }
+    }
+
     /// The camera frame at the current pose into `out` (`width * height * 3` RGB8).
     pub fn observe(&mut self, out: &mut [u8]) {
         if let Some(a) = self.appearance.as_mut() {
@@ -275,17 +294,47 @@ impl World {
         }
     }
 
+    /// Tilts the rendered camera as the current look says (back to the configured tilt
+    /// when the look draws none, or randomisation is off).
+    fn tilt_camera(&mut self) -> Result<(), super::SimError> {
+        let FrameMaker::Render(r) = &mut self.frames else {
+            return Ok(());
+        };
+        let tilt = self
+            .appearance
+            .as_ref()
+            .and_then(|a| a.look().tilt_deg)
+            .unwrap_or(self.base_tilt_deg);
+        if r.camera().tilt_deg != tilt {
+            let camera = super::camera::CameraModel {
+                tilt_deg: tilt,
+                ..*r.camera()
+            };
+            // The backdrop is dropped with the old camera; a new look brings a new scene,
+            // whose backdrop show_scene draws for this camera.
+            r.set_camera(camera)?;
+        }
+        Ok(())
+    }
+
     /// Repaints the rendered mat and backdrop when the appearance has drawn a new scene.
     /// Replayed frames keep the scene they recorded.
     fn show_scene(&mut self) {
-        let FrameMaker::Render(r) = &mut self.frames else {
+        if !matches!(self.frames, FrameMaker::Render(_)) {
             return;
-        };
+        }
         let generation = self.appearance.as_ref().map(|a| a.generation());
         let new_look = generation.is_some() && self.painted != generation;
+        if new_look && let Err(e) = self.tilt_camera() {
+            // The range was validated; keep the camera there is.
+            tracing::warn!("camera tilt: {e}; keeping the camera's tilt");
+        }
         if !new_look && !self.track_changed {
             return;
         }
+        let FrameMaker::Render(r) = &mut self.frames else {
+            return;
+        };
         self.painted = generation;
         let scene = self.appearance.as_ref().and_then(|a| a.scene());
         if scene.is_none() && !self.track_changed {
