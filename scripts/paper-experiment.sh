@@ -121,7 +121,9 @@ for seed in $SEEDS; do
     il_s=$(cat "$OUT/il_$seed.seconds")
   fi
   left_min=$(awk -v m="$BUDGET_MIN" -v s="$il_s" 'BEGIN { printf "%.2f", m - s / 60 }')
-  echo "seed $seed: imitation learning took $il_s s; IL + DDPG gets $left_min more minutes"
+  if runs ilddpg; then
+    echo "seed $seed: imitation learning took $il_s s; IL + DDPG gets $left_min more minutes"
+  fi
   for entry in "${TRACKS[@]}"; do
     name=${entry%%|*}
     grep -qE "$TRACK_FILTER" <<< "$name" || continue

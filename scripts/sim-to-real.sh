@@ -81,8 +81,10 @@ run() {
 }
 
 sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
-sed "s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
-sed "s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = [0.09, 0.12]/" \
+# Only inside [sim.layouts] ([sim.path] has a lane_width_m of its own).
+LAYOUTS='/^\[sim\.layouts\]/,/^\[/'
+sed "${LAYOUTS} s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
+sed "${LAYOUTS} { s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = [0.09, 0.12]/ }" \
   "$OUT/matched.toml" > "$OUT/matched_layouts.toml"
 sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched_layouts.toml" \
   > "$OUT/tilted.toml"
