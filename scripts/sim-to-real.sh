@@ -25,7 +25,9 @@
 #   tilted:     as matched_layouts, with the camera's tilt drawn with each look from TILT
 #               (default [15.0, 40.0] degrees below the horizontal): JetBot's camera mount
 #               is bent by hand, and the real frames show it at about 16 to 37 degrees.
-# VARIANTS="matched scattered" runs some of them only (default: all but tilted); TRACK
+#   scattered_tilted: as scattered (random poses, as JetBot's notebook collects), the
+#               camera tilted as in tilted.
+# VARIANTS="matched scattered" runs some of them only (default: all but the tilted two); TRACK
 # (default config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched
 # and scattered's road and target.
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
@@ -88,6 +90,8 @@ sed "${LAYOUTS} { s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_widt
   "$OUT/matched.toml" > "$OUT/matched_layouts.toml"
 sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched_layouts.toml" \
   > "$OUT/tilted.toml"
+sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched.toml" \
+  > "$OUT/scattered_tilted.toml"
 grep -q '^camera_tilt_deg' "$OUT/tilted.toml" || {
   echo "sim-to-real.sh: $CFG has no '# camera_tilt_deg' line to set" >&2
   exit 2
@@ -118,6 +122,11 @@ if wanted matched_layouts; then
   echo "== matched_layouts: as matched, on random layouts with narrow lanes"
   SIM_CFG="$OUT/matched_layouts.toml" run matched_layouts drive --camera jetbot --randomise \
     --random-layouts --swerve-every 2
+fi
+if wanted scattered_tilted; then
+  echo "== scattered_tilted: as scattered, the camera tilted $TILT degrees, drawn per sample"
+  SIM_CFG="$OUT/scattered_tilted.toml" run scattered_tilted scatter --camera jetbot --randomise \
+    --track "$TRACK"
 fi
 if wanted tilted; then
   echo "== tilted: as matched_layouts, the camera tilted $TILT degrees, drawn per look"

@@ -155,6 +155,21 @@ fn a_split_by_time_scores_the_latest_frames_against_the_earlier_mean() {
     assert!(stdout2.contains("over 2 frames"), "{stdout2}");
     assert!(stdout2.contains("model     mean 61.0 px"), "{stdout2}");
     assert!(stdout2.contains("baseline  mean 57.3 px"), "{stdout2}");
+    // A constant answers the same everywhere: no correlation, no spread. The labels: x 140
+    // and 200 (sd 30 px), y 96 and 112 (sd 8 px).
+    assert!(
+        stdout2.contains(
+            "tracking  labels sd (30.0, 8.0), predictions sd (0.0, 0.0), correlation (-, -) (px)"
+        ),
+        "{stdout2}"
+    );
+    // The best constant for these two, their own mean (170, 104): |(30, 8)| = 31.0 px each,
+    // 31.05 / 57.28 = 0.54 of the baseline.
+    assert!(
+        stdout2.contains("own mean label (0.518, -0.071): mean 31.0 px")
+            && stdout2.contains("(0.54 of the baseline)"),
+        "{stdout2}"
+    );
 }
 
 #[test]

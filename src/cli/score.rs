@@ -191,6 +191,28 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         card.baseline, baseline_label[0], baseline_label[1]
     );
     println!("  model / baseline: {:.2}", card.ratio());
+    // Does the model follow the labels, or answer about the same everywhere?
+    let tracking = score::Tracking::of(&labels, &predictions);
+    match contract.output {
+        OutputKind::Xy => println!(
+            "  tracking  {:.1} (px)",
+            tracking.scaled(score::JETBOT_FRAME_PX as f64 / 2.0)
+        ),
+        OutputKind::SpeedSteering => println!("  tracking  {tracking}"),
+    }
+    if reference.as_ref().is_some_and(|train| !train.is_empty()) {
+        // What a constant that knew the scored frames' own mean would score: below it, a
+        // model has learnt more than where the labels sit on average.
+        let own = score::mean_label(&labels);
+        let oracle = Scorecard::new(contract.output, &labels, &predictions, own);
+        println!(
+            "  constant at the scored frames' own mean label ({:.3}, {:.3}): {} ({:.2} of the baseline)",
+            own[0],
+            own[1],
+            oracle.baseline,
+            oracle.baseline.headline() / card.baseline.headline().max(1e-12)
+        );
+    }
 
     let out = args.out.clone().unwrap_or_else(|| default_out(&args.model));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;

@@ -183,9 +183,99 @@ impl Scorecard {
     }
 }
 
+/// Whether a model follows the labels at all, per output: the spread of the labels and of
+/// the predictions (standard deviations) and their Pearson correlation. A model that has
+/// learnt nothing that holds on these frames answers nearly the same everywhere: a small
+/// prediction spread and a correlation near 0, whatever its mean error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tracking {
+    pub label_sd: [f64; 2],
+    pub prediction_sd: [f64; 2],
+    /// `None` where either side does not vary.
+    pub correlation: [Option<f64>; 2],
+}
+
+impl Tracking {
+    /// Over paired `labels` and `predictions` (in the outputs' own units).
+    pub fn of(labels: &[[f32; 2]], predictions: &[[f32; 2]]) -> Self {
+        debug_assert_eq!(labels.len(), predictions.len());
+        let n = labels.len().max(1) as f64;
+        let mut out = Self {
+            label_sd: [0.0; 2],
+            prediction_sd: [0.0; 2],
+            correlation: [None; 2],
+        };
+        for k in 0..2 {
+            let mean = |v: &[[f32; 2]]| v.iter().map(|x| x[k] as f64).sum::<f64>() / n;
+            let (ml, mp) = (mean(labels), mean(predictions));
+            let (mut sll, mut spp, mut slp) = (0.0, 0.0, 0.0);
+            for (l, p) in labels.iter().zip(predictions) {
+                let (dl, dp) = (l[k] as f64 - ml, p[k] as f64 - mp);
+                sll += dl * dl;
+                spp += dp * dp;
+                slp += dl * dp;
+            }
+            out.label_sd[k] = (sll / n).sqrt();
+            out.prediction_sd[k] = (spp / n).sqrt();
+            out.correlation[k] = (sll > 1e-12 && spp > 1e-12).then(|| slp / (sll * spp).sqrt());
+        }
+        out
+    }
+
+    /// Standard deviations scaled (`112`: xy labels in -1..1 to pixels of JetBot's frame).
+    pub fn scaled(self, by: f64) -> Self {
+        Self {
+            label_sd: self.label_sd.map(|v| v * by),
+            prediction_sd: self.prediction_sd.map(|v| v * by),
+            ..self
+        }
+    }
+}
+
+impl fmt::Display for Tracking {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // The spreads to `{:.N}` decimals (3 unless given); correlations to 2.
+        let d = f.precision().unwrap_or(3);
+        let r = |c: Option<f64>| c.map_or("-".to_string(), |c| format!("{c:.2}"));
+        write!(
+            f,
+            "labels sd ({:.d$}, {:.d$}), predictions sd ({:.d$}, {:.d$}), correlation ({}, {})",
+            self.label_sd[0],
+            self.label_sd[1],
+            self.prediction_sd[0],
+            self.prediction_sd[1],
+            r(self.correlation[0]),
+            r(self.correlation[1])
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tracking_worked_numbers() {
+        // x: labels -0.5, 0.5, 0, 0 (sd sqrt(0.125) = 0.354); predictions half of them,
+        // so sd 0.177 and correlation 1. y: predictions constant, so no correlation.
+        let labels = [[-0.5, 0.2], [0.5, -0.2], [0.0, 0.2], [0.0, -0.2]];
+        let preds = [[-0.25, 0.1], [0.25, 0.1], [0.0, 0.1], [0.0, 0.1]];
+        let t = Tracking::of(&labels, &preds);
+        assert!((t.label_sd[0] - 0.125f64.sqrt()).abs() < 1e-6, "{t:?}");
+        assert!((t.prediction_sd[0] - 0.125f64.sqrt() / 2.0).abs() < 1e-6);
+        assert!((t.correlation[0].unwrap() - 1.0).abs() < 1e-6);
+        assert!((t.label_sd[1] - 0.2).abs() < 1e-6 && t.prediction_sd[1] < 1e-7);
+        assert_eq!(t.correlation[1], None);
+        // Opposite predictions: -1. In pixels: 0.2 * 112 = 22.4.
+        let flipped: Vec<[f32; 2]> = labels.iter().map(|l| [-l[0], -l[1]]).collect();
+        let t = Tracking::of(&labels, &flipped).scaled(112.0);
+        assert!((t.correlation[1].unwrap() + 1.0).abs() < 1e-6);
+        assert!((t.label_sd[1] - 22.4).abs() < 1e-4);
+        assert_eq!(
+            format!("{t:.1}"),
+            "labels sd (39.6, 22.4), predictions sd (39.6, 22.4), correlation (-1.00, -1.00)"
+        );
+    }
 
     #[test]
     fn pixel_errors_are_in_jetbots_224_frame() {
