@@ -601,7 +601,7 @@ impl Renderer {
     }
 
     /// Moves the camera (another tilt, height or lens, same image size): the ray table and
-    /// the wall's shading are built again (a few milliseconds at 224x224). The backdrop,
+    /// the wall's shading are built again (as in `new`; not timed). The backdrop,
     /// drawn for the old camera, is dropped; the caller sets one for the new camera.
     pub fn set_camera(&mut self, camera: CameraModel) -> Result<(), SimError> {
         camera.validate()?;
