@@ -46,6 +46,27 @@ pub struct PosesArgs {
     /// With --check: where the trace goes (default: poses-check.png).
     #[arg(long, value_name = "FILE", requires = "check")]
     png: Option<PathBuf>,
+    /// Where vision's own motions scatter about the wheels' by more than this (the
+    /// `vision scatter` line: in units of the uncertainty vision claims), trust the wheels
+    /// that much more (a low-contrast floor, glare). 0: off.
+    #[arg(long, value_name = "K", default_value_t = 4.0)]
+    scatter_ref: f64,
+}
+
+/// The calibration's lines: the wheel model's corrections and vision's scatter.
+fn print_calibration(est: &odometry::Estimate) {
+    if let Some(sc) = est.scales {
+        println!(
+            "wheel model:     speed x{:.3} ({} frames), turn x{:.3} ({} frames), calibrated from the frames",
+            sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
+        );
+    }
+    if let Some(k) = est.scatter {
+        println!(
+            "vision scatter:  {k:.2} x its claimed uncertainty about the wheels (median); the wheels' weight {:.1}",
+            est.prior_weight
+        );
+    }
 }
 
 pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
@@ -55,7 +76,10 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     };
     let tub = TubReader::open(&args.tub)
         .with_context(|| format!("reading the tub {}", args.tub.display()))?;
-    let params = OdometryParams::default();
+    let params = OdometryParams {
+        scatter_ref: args.scatter_ref,
+        ..OdometryParams::default()
+    };
     if args.check {
         return check_against_truth(&args, &tub, &sim, params);
     }
@@ -86,12 +110,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep)?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
-    if let Some(sc) = est.scales {
-        println!(
-            "wheel model corrected from the frames: speed x{:.3} ({} frames), turn x{:.3} ({} frames)",
-            sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
-        );
-    }
+    print_calibration(&est);
     let flagged = est.flagged().saturating_sub(1);
     let length: f32 = est
         .poses
@@ -162,12 +181,7 @@ fn check_against_truth(
         .filter_map(|p| truth.get(&p.index).copied())
         .collect();
     output::trace_png(&est, Some(&truth_path), &png)?;
-    if let Some(sc) = est.scales {
-        println!(
-            "wheel model:     speed x{:.3} ({} frames), turn x{:.3} ({} frames), calibrated from the frames",
-            sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
-        );
-    }
+    print_calibration(&est);
     println!("visual + wheels: {d}");
     println!(
         "                 {} of {} frames from the wheels alone",

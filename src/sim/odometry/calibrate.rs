@@ -81,6 +81,60 @@ pub fn fit(samples: &[Sample]) -> Scales {
     }
 }
 
+/// The median of a chi-square with 3 degrees of freedom.
+const CHI2_3_MEDIAN: f64 = 2.366;
+
+/// How far vision's own motions (the calibration pass: no pull towards the wheels) lie
+/// from the wheels', in units of the uncertainty vision claims: the median over the
+/// registered frames of `dᵀ I d / 2.366` (2.366 is the median of a chi-square with 3
+/// degrees of freedom), `d` the difference of the two motions and `I` vision's
+/// information. The wheels are first scaled to vision's motion over all registered frames
+/// (speed and turn, least squares weighted by vision's information), so a wheel model that
+/// is only off in scale (too few well-measured frames for [`fit`]) does not count as
+/// vision's scatter. About 1 when vision's errors are as small as it claims; larger when
+/// vision is overconfident or biased from frame to frame (a low-contrast floor, glare) or
+/// the wheels slip. `None` with fewer than [`MIN_FRAMES`] registered frames.
+pub fn scatter(samples: &[Sample]) -> Option<f64> {
+    let registered: Vec<&Sample> = samples.iter().filter(|s| s.vision.converged).collect();
+    if registered.len() < MIN_FRAMES {
+        return None;
+    }
+    let scale = |pick: &dyn Fn(&Motion) -> f32, i: usize| {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for s in &registered {
+            let (p, v, w) = (
+                f64::from(pick(&s.prior)),
+                f64::from(pick(&s.vision.motion)),
+                s.vision.information[(i, i)],
+            );
+            if w.is_finite() {
+                num += w * v * p;
+                den += w * p * p;
+            }
+        }
+        if den > 0.0 { num / den } else { 1.0 }
+    };
+    let speed = scale(&|m| m.forward, 0);
+    let turn = scale(&|m| m.yaw, 2);
+    let mut r: Vec<f64> = registered
+        .iter()
+        .map(|s| {
+            let d = nalgebra::Vector3::new(
+                f64::from(s.vision.motion.forward) - f64::from(s.prior.forward) * speed,
+                f64::from(s.vision.motion.left) - f64::from(s.prior.left) * speed,
+                f64::from(s.vision.motion.yaw) - f64::from(s.prior.yaw) * turn,
+            );
+            (d.transpose() * s.vision.information * d)[(0, 0)] / CHI2_3_MEDIAN
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    if r.len() < MIN_FRAMES {
+        return None;
+    }
+    r.sort_by(f64::total_cmp);
+    Some(r[r.len() / 2])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -133,5 +187,47 @@ mod tests {
         // Too few frames: no correction.
         let f = fit(&s[..10]);
         assert_eq!((f.speed, f.turn), (1.0, 1.0));
+    }
+
+    #[test]
+    fn scatter_in_units_of_visions_claimed_uncertainty() {
+        // Vision's forward motion alternates 9.2 and 10.8 mm about the wheels' 10 mm (the
+        // best scale is 1), sure to 0.1 mm (information 1e8 /m²): d = 0.8 mm, dᵀ I d = 64,
+        // / 2.366 = 27.05.
+        let s: Vec<Sample> = (0..26)
+            .map(|i| {
+                let v = if i % 2 == 0 { 0.0092 } else { 0.0108 };
+                sample(
+                    Motion::new(0.010, 0.0, 0.0),
+                    Motion::new(v, 0.0, 0.0),
+                    [1e8, 1e8, 1e6],
+                )
+            })
+            .collect();
+        let k = scatter(&s).unwrap();
+        assert!((k - 64.0 / 2.366).abs() < 0.05, "{k}");
+        // Wheels off in scale only (vision 9 mm every frame): not vision's scatter.
+        let s: Vec<Sample> = (0..25)
+            .map(|_| {
+                sample(
+                    Motion::new(0.010, 0.0, 0.02),
+                    Motion::new(0.009, 0.0, 0.024),
+                    [1e8, 1e8, 1e6],
+                )
+            })
+            .collect();
+        assert!(scatter(&s).unwrap() < 1e-6);
+        // A direction vision cannot measure (information 1e-6) adds nothing however far off.
+        let s: Vec<Sample> = (0..25)
+            .map(|_| {
+                sample(
+                    Motion::new(0.010, 0.0, 0.0),
+                    Motion::new(0.010, 0.05, 0.0),
+                    [1e8, 1e-6, 1e6],
+                )
+            })
+            .collect();
+        assert!(scatter(&s).unwrap() < 1e-3);
+        assert_eq!(scatter(&s[..10]), None);
     }
 }

@@ -44,6 +44,12 @@ pub struct OdometryParams {
     /// Calibrate the wheel model's speed and turn scales from the frames first
     /// ([`calibrate`]), then estimate with the corrected model.
     pub calibrate: bool,
+    /// With calibration: where vision's own motions scatter about the wheels' by more
+    /// than this ([`calibrate::scatter`]), the wheels hold the fused pass harder: the
+    /// prior's weight is multiplied by `scatter / this`. 0: off. 4 by default: above the
+    /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; README's
+    /// odometry study), below the 5-14 of looks where it pulled the estimate off.
+    pub scatter_ref: f64,
 }
 
 impl Default for OdometryParams {
@@ -53,6 +59,7 @@ impl Default for OdometryParams {
             levels: 1,
             fusion: FusionParams::default(),
             calibrate: true,
+            scatter_ref: 4.0,
         }
     }
 }
@@ -202,6 +209,11 @@ pub struct Estimate {
     pub poses: Vec<FramePose>,
     /// The wheel model's corrections (when calibrated).
     pub scales: Option<calibrate::Scales>,
+    /// Vision's scatter about the wheels ([`calibrate::scatter`]).
+    pub scatter: Option<f64>,
+    /// The prior's weight the fused pass used (`params.fusion.prior_weight`, raised by
+    /// `scatter_ref`).
+    pub prior_weight: f32,
     /// Records whose image could not be read (each named), and the tub's own warnings.
     pub warnings: Vec<String>,
 }
@@ -213,6 +225,15 @@ impl Estimate {
             .iter()
             .filter(|p| p.source != Source::Fused)
             .count()
+    }
+}
+
+/// The wheel prior's weight for the fused pass: `weight`, raised by `scatter / reference`
+/// where vision scatters about the wheels by more than `reference` (0: never).
+pub fn held_harder(weight: f32, scatter: Option<f64>, reference: f64) -> f32 {
+    match scatter {
+        Some(s) if reference > 0.0 && s > reference => weight * (s / reference) as f32,
+        _ => weight,
     }
 }
 
@@ -238,13 +259,17 @@ pub fn estimate(
             reason: "the tub has no records".into(),
         });
     };
-    let scales = if params.calibrate {
+    let (scales, scatter) = if params.calibrate {
         let mut odo = Odometer::new(camera, robot, params, start).calibrating();
         pass(tub, &records, camera, &opts, &mut odo, &mut Vec::new())?;
-        Some(calibrate::fit(odo.samples()))
+        let scales = calibrate::fit(odo.samples());
+        (Some(scales), calibrate::scatter(odo.samples()))
     } else {
-        None
+        (None, None)
     };
+    let mut params = params;
+    params.fusion.prior_weight =
+        held_harder(params.fusion.prior_weight, scatter, params.scatter_ref);
     let mut odo = Odometer::new(camera, robot, params, start);
     if let Some(sc) = &scales {
         odo = odo.with_scales(sc);
@@ -253,6 +278,8 @@ pub fn estimate(
     Ok(Estimate {
         poses,
         scales,
+        scatter,
+        prior_weight: params.fusion.prior_weight,
         warnings,
     })
 }
@@ -365,6 +392,15 @@ mod tests {
             "{q:?}"
         );
         assert!((q.heading - (std::f32::consts::FRAC_PI_2 + 0.3)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_wheels_hold_harder_where_vision_scatters() {
+        // The glare look's drive: scatter 13.92 against 4: 16 x 3.48 = 55.68.
+        assert!((held_harder(16.0, Some(13.92), 4.0) - 55.68).abs() < 1e-3);
+        assert_eq!(held_harder(16.0, Some(3.81), 4.0), 16.0);
+        assert_eq!(held_harder(16.0, None, 4.0), 16.0);
+        assert_eq!(held_harder(16.0, Some(13.92), 0.0), 16.0, "0: off");
     }
 
     #[test]
