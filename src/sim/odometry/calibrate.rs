@@ -41,27 +41,42 @@ fn marginal_sd(r: &Registration, i: usize) -> f64 {
     }
 }
 
+/// The weighted least-squares scale taking the wheels' `p` to vision's `v` over
+/// `(p, v, weight)` triples, `Σ w v p / Σ w p²` (`None` when no triple carries weight),
+/// and how many triples there were.
+fn weighted_scale(triples: impl Iterator<Item = (f64, f64, f64)>) -> (Option<f64>, usize) {
+    let (mut num, mut den, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (p, v, w) in triples {
+        num += w * v * p;
+        den += w * p * p;
+        n += 1;
+    }
+    ((den > 0.0).then(|| num / den), n)
+}
+
 /// Least-squares scales over the frames that measure each direction well: forward to
 /// 0.5 mm while the wheels predict at least 3 mm, the turn to 0.003 rad while they predict
 /// at least 0.008 rad.
 pub fn fit(samples: &[Sample]) -> Scales {
     let fit_one = |pick: &dyn Fn(&Motion) -> f32, i: usize, sd_max: f64, min_prior: f32| {
-        let (mut num, mut den, mut n) = (0.0f64, 0.0f64, 0usize);
-        for s in samples.iter().filter(|s| s.vision.converged) {
-            let p = pick(&s.prior);
-            let sd = marginal_sd(&s.vision, i);
-            if p.abs() < min_prior || sd.is_nan() || sd > sd_max {
-                continue;
-            }
-            let w = 1.0 / (sd * sd);
-            num += w * f64::from(pick(&s.vision.motion)) * f64::from(p);
-            den += w * f64::from(p) * f64::from(p);
-            n += 1;
-        }
-        if n < MIN_FRAMES || den <= 0.0 {
-            (1.0, n)
-        } else {
-            ((num / den) as f32, n)
+        let well_measured = samples
+            .iter()
+            .filter(|s| s.vision.converged)
+            .filter_map(|s| {
+                let p = pick(&s.prior);
+                let sd = marginal_sd(&s.vision, i);
+                if p.abs() < min_prior || sd.is_nan() || sd > sd_max {
+                    return None;
+                }
+                Some((
+                    f64::from(p),
+                    f64::from(pick(&s.vision.motion)),
+                    1.0 / (sd * sd),
+                ))
+            });
+        match weighted_scale(well_measured) {
+            (Some(scale), n) if n >= MIN_FRAMES => (scale as f32, n),
+            (_, n) => (1.0, n),
         }
     };
     let (speed, speed_frames) = fit_one(&|m| m.forward, 0, 5e-4, 0.003);
@@ -100,19 +115,17 @@ pub fn scatter(samples: &[Sample]) -> Option<f64> {
         return None;
     }
     let scale = |pick: &dyn Fn(&Motion) -> f32, i: usize| {
-        let (mut num, mut den) = (0.0f64, 0.0f64);
-        for s in &registered {
-            let (p, v, w) = (
-                f64::from(pick(&s.prior)),
-                f64::from(pick(&s.vision.motion)),
-                s.vision.information[(i, i)],
-            );
-            if w.is_finite() {
-                num += w * v * p;
-                den += w * p * p;
-            }
-        }
-        if den > 0.0 { num / den } else { 1.0 }
+        let triples = registered.iter().filter_map(|s| {
+            let w = s.vision.information[(i, i)];
+            w.is_finite().then(|| {
+                (
+                    f64::from(pick(&s.prior)),
+                    f64::from(pick(&s.vision.motion)),
+                    w,
+                )
+            })
+        });
+        weighted_scale(triples).0.unwrap_or(1.0)
     };
     let speed = scale(&|m| m.forward, 0);
     let turn = scale(&|m| m.yaw, 2);

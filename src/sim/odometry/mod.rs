@@ -48,7 +48,7 @@ pub struct OdometryParams {
     /// than this ([`calibrate::scatter`]), the wheels hold the fused pass harder: the
     /// prior's weight is multiplied by `scatter / this`. 0: off. 4 by default: above the
     /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; README's
-    /// odometry study), below the 5-14 of looks where it pulled the estimate off.
+    /// odometry study), below the 4.6-14 of looks where it pulled the estimate off.
     pub scatter_ref: f64,
 }
 
