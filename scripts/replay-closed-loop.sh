@@ -29,12 +29,19 @@
 # about 1000 frames, neighbours alike at 30 Hz), DRIVE_S (default 40: 1.2 laps), EVAL_S
 # (the rendered-track tests, default 600), BIN (a built jetpilot with --features train;
 # default: build target/release/jetpilot),
-# ILDDPG_FLAGS (default: the levers of README's experiment with smaller steering noise and
-# no failure resets: on the one-lane path road the rendered mat's OU 0.3 left the replay's
-# bounds within seconds), POSES (default "true est": which replays get IL + DDPG), IL_SWERVE
+# ILDDPG_FLAGS (default: the levers of README's experiment with smaller steering noise, no
+# failure resets and the pull towards the imitation policy kept: on the path road the
+# rendered mat's OU 0.3 left the replay's bounds within seconds, and once the pull had
+# decayed the actor collapsed), POSES (default "true est": which replays get IL + DDPG), IL_SWERVE
 # (the demonstration drive's seconds between swerves, default 4; the replayed drive's are
-# 3, so the two drives differ). Steps already done (their output is complete) are skipped,
-# so an interrupted run goes on. About 1 h on 2 cores.
+# 3, so the two drives differ), PATH_LANES (default 2: the drive is the right lane of the
+# mat's two-lane road, so drifting into the other lane costs reward, as on the rendered
+# mat, instead of ending the episode; 1: the road is the drive's own lane), REPLAY_HEADING
+# (default 30: the replay's heading bound, degrees; VISTA's 18 ended the imitation policy's
+# replayed drive 3 times as often as the rendered track does, every time by that bound,
+# while JetBot's 160-degree lens still covers 78 % of the ground at 30). Steps already
+# done (their output is complete) are skipped, so an interrupted run goes on. About 1 h on
+# 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-.cache/replay-loop}
@@ -42,9 +49,11 @@ MINUTES=${MINUTES:-15}
 IL_EPOCHS=${IL_EPOCHS:-10}
 DRIVE_S=${DRIVE_S:-40}
 EVAL_S=${EVAL_S:-600}
-ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 4000 --failure-resets 0 --actor-lr 1e-4 --noise ou --sigma-steering 0.1 --sigma-speed 0.05}
+ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 0 --failure-resets 0 --actor-lr 1e-4 --noise ou --sigma-steering 0.1 --sigma-speed 0.05}
 POSES=${POSES:-true est}
 IL_SWERVE=${IL_SWERVE:-4}
+PATH_LANES=${PATH_LANES:-2}
+REPLAY_HEADING=${REPLAY_HEADING:-30}
 if [ -n "${BIN:-}" ]; then
   B=$BIN
 else
@@ -96,7 +105,7 @@ IL=$OUT/il/best.onnx
 for poses in true est; do
   tub=drive
   [ "$poses" = est ] && tub=drive-est
-  sed "s|^frames = .*|frames = \"replay\"|; s|^# recording = .*|recording = \"$tub\"|; s|^road = .*|road = \"path\"|" \
+  sed "s|^frames = .*|frames = \"replay\"|; s|^# recording = .*|recording = \"$tub\"|; s|^road = .*|road = \"path\"|; s|^lanes = .*|lanes = $PATH_LANES|; s|^replay_max_heading_deg = .*|replay_max_heading_deg = $REPLAY_HEADING|" \
     "$OUT/sim-noise.toml" > "$OUT/path-$poses.toml"
 done
 

@@ -182,6 +182,7 @@ fn leaving_the_road_counts_interventions_and_recentres() {
     let n = rig.world.stats.interventions;
     assert!(n >= 3, "a car that cannot steer leaves the road: {n}");
     assert_eq!(n, seen);
+    assert_eq!(rig.world.stats.causes.off_road, n);
     assert_eq!(rig.world.stats.intervention_poses.len(), n as usize);
     // After each, it is put back on the road, so it keeps driving (and leaving).
     assert!(
@@ -625,6 +626,22 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["interventions"], 0, "{v}");
+    // Turning on the spot on the path road: the replayed view turns past 18 degrees from
+    // its recorded frame long before the stall rule's window ends, and that is what each
+    // intervention is counted as.
+    let mut rig = setup::build(&Config::parse(&path_road, "path.toml").unwrap()).unwrap();
+    for _ in 0..(6 * 30) {
+        rig.motors.drive(WheelCommand::new(0.3, -0.3)).unwrap();
+        for _ in 0..8 {
+            rig.world.advance(1.0 / 240.0);
+        }
+        let mut frame = vec![0u8; 48 * 48 * 3];
+        rig.world.observe(&mut frame);
+        rig.world.score();
+    }
+    let s = &rig.world.stats;
+    assert!(s.interventions >= 3, "{s:?}");
+    assert_eq!(s.causes.replay_heading, s.interventions, "{:?}", s.causes);
     // A path road needs replayed frames: refused, naming the key.
     let out = eval_expert(
         &format!("{base}[sim]\nrecording = {demos:?}\nroad = \"path\"\n"),
@@ -682,6 +699,7 @@ fn a_car_spinning_on_the_road_is_an_intervention_too() {
             .all(|p| w.track.on_road(p.x, p.y)),
         "all on the road: the stall rule, not the road edge"
     );
+    assert_eq!(w.stats.causes.stalled, 6, "{:?}", w.stats.causes);
 }
 
 #[test]

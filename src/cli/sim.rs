@@ -16,6 +16,7 @@ use jetpilot::sim::demos::DemoRecorder;
 use jetpilot::sim::render::{top_down, write_png};
 use jetpilot::sim::reward::autonomy;
 use jetpilot::sim::setup::{self, SimRig};
+use jetpilot::sim::world::InterventionCauses;
 
 /// Which road to drive, over the config's `[sim]` (shared by `sim`, `eval` and
 /// `train ddpg`).
@@ -176,6 +177,8 @@ pub struct EvalResult {
     pub pilot: String,
     pub test_seconds: f64,
     pub interventions: u32,
+    /// What ended each intervention.
+    pub intervention_causes: InterventionCauses,
     /// `(1 - interventions * 6 / test_seconds) * 100`.
     pub autonomy_percent: f32,
     /// Control steps whose reward reached the threshold ("one reward").
@@ -286,6 +289,7 @@ fn drive(
         pilot: name,
         test_seconds: s.time_s,
         interventions: s.interventions,
+        intervention_causes: s.causes,
         autonomy_percent: autonomy(s.interventions, s.time_s as f32),
         rewards: s.rewards,
         control_steps: s.control_steps,
@@ -322,6 +326,17 @@ fn print_result(r: &EvalResult) {
         "  interventions  {}   autonomy {:.1} %  ((1 - n * 6 s / {:.0} s) * 100)",
         r.interventions, r.autonomy_percent, r.test_seconds
     );
+    let c = &r.intervention_causes;
+    if r.interventions > 0 {
+        println!(
+            "  ended by       off the road {}, replay bounds {} (sideways {}, heading {}), stalled {}",
+            c.off_road,
+            c.replay(),
+            c.replay_offset,
+            c.replay_heading,
+            c.stalled
+        );
+    }
     println!(
         "  rewards        {} of {} steps with R >= threshold (mean R {:.3})",
         r.rewards, r.control_steps, r.mean_reward

@@ -1,8 +1,12 @@
 //! The recorded path as the road (VISTA's premise: where the person drove is the road).
 //!
 //! A recording with poses (true ones from the simulator, or estimated by `jetpilot poses`)
-//! becomes a one-lane [`Track`]: the path resampled every `spacing_m` along its length is
-//! the lane centre, and the road is that line plus or minus half a lane width. A path that
+//! becomes a [`Track`]: the path resampled every `spacing_m` along its length is the lane
+//! centre. With `lanes = 1` (a lane between two tape lines) the road is that line plus or
+//! minus half a lane width. With `lanes = 2` (the JetBot mat: the recording drove the right
+//! lane of a two-lane road) the road reaches one more lane to the path's left, so leaving
+//! the lane to the left costs reward but is not an intervention until the road's far edge
+//! (or the replay's validity bound, half the road's width from the nearest recorded frame). A path that
 //! comes back to where it started (within half a lane width, heading within 45 degrees,
 //! after going at least a metre away) is closed into a loop at its first return, and
 //! progress wraps there; otherwise the road is open and ends where the recording does.
@@ -26,6 +30,9 @@ pub struct PathRoadConfig {
     pub lane_width_m: f32,
     /// Spacing of the road's centre-line points along the path, metres.
     pub spacing_m: f32,
+    /// Lanes of the road: 1, the path's own lane; 2, the path is the right lane of a
+    /// two-lane road (the JetBot mat), the other lane to its left.
+    pub lanes: u8,
 }
 
 impl Default for PathRoadConfig {
@@ -33,6 +40,7 @@ impl Default for PathRoadConfig {
         Self {
             lane_width_m: 0.20,
             spacing_m: 0.02,
+            lanes: 1,
         }
     }
 }
@@ -71,6 +79,12 @@ impl PathRoadConfig {
             return Err(SimError::Invalid(format!(
                 "sim.path.spacing_m = {}: allowed 0.005 to 0.2 m",
                 self.spacing_m
+            )));
+        }
+        if !(1..=2).contains(&self.lanes) {
+            return Err(SimError::Invalid(format!(
+                "sim.path.lanes = {}: allowed 1 (the path's lane) or 2 (the path is the right lane of two)",
+                self.lanes
             )));
         }
         Ok(())
@@ -154,19 +168,63 @@ pub fn road_from_path(poses: &[Pose2], cfg: &PathRoadConfig, origin: &str) -> Re
         (max_x.max(0.0) - min_x.min(0.0)) + 0.5,
         (max_y.max(0.0) - min_y.min(0.0)) + 0.5,
     );
-    let track = Track::from_polyline(
-        &format!("path of {origin}"),
-        used,
-        closed,
-        f64::from(cfg.lane_width_m),
-        mat,
-    )?;
+    let name = format!("path of {origin}");
+    let lane_width = f64::from(cfg.lane_width_m);
+    let track = if cfg.lanes == 2 {
+        let centre = resample_closed(
+            &offset_left(used, closed, lane_width / 2.0),
+            closed,
+            spacing,
+        );
+        Track::two_lanes_from_polyline(&name, &centre, closed, lane_width, mat)?
+    } else {
+        Track::from_polyline(&name, used, closed, lane_width, mat)?
+    };
     Ok(PathRoad {
         track,
         closed,
         path_length_m,
         closing_gap_m,
     })
+}
+
+/// `points` moved `by` metres to their left (across the direction from the previous point to
+/// the next; a loop wraps round, an open path's ends use their one neighbour).
+pub fn offset_left(points: &[(f64, f64)], closed: bool, by: f64) -> Vec<(f64, f64)> {
+    let n = points.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = if closed {
+                (points[(i + n - 1) % n], points[(i + 1) % n])
+            } else {
+                (points[i.saturating_sub(1)], points[(i + 1).min(n - 1)])
+            };
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            let len = dx.hypot(dy).max(1e-12);
+            (points[i].0 - by * dy / len, points[i].1 + by * dx / len)
+        })
+        .collect()
+}
+
+/// [`resample`], and for a loop the piece from the last point back to the first too
+/// (without repeating the first point at the end).
+fn resample_closed(points: &[(f64, f64)], closed: bool, spacing: f64) -> Vec<(f64, f64)> {
+    if !closed {
+        return resample(points, spacing);
+    }
+    let mut round: Vec<(f64, f64)> = points.to_vec();
+    if let Some(&first) = points.first() {
+        round.push(first);
+    }
+    let mut out = resample(&round, spacing);
+    // Drop a last point that (nearly) repeats the first.
+    if out.len() > 3
+        && let (Some(&last), Some(&first)) = (out.last(), out.first())
+        && dist(last, first) < 0.5 * spacing
+    {
+        out.pop();
+    }
+    out
 }
 
 fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
@@ -445,6 +503,60 @@ mod tests {
     }
 
     #[test]
+    fn a_two_lane_path_road_is_the_mat_when_the_path_is_its_right_lane() {
+        // The mat's right-lane centre as the path; lanes = 2: the road reaches one lane to
+        // its left, so it is the mat's road again (its centre line and both edges).
+        let mat = Track::jetbot_mat();
+        let n = (mat.length() / 0.02) as usize;
+        let lane: Vec<Pose2> = (0..=n + 25)
+            .map(|i| mat.lane_pose_at(i as f32 * mat.length() / n as f32))
+            .collect();
+        let cfg = PathRoadConfig {
+            lanes: 2,
+            ..PathRoadConfig::default()
+        };
+        let road = road_from_path(&lane, &cfg, "mat lane").unwrap();
+        assert!(road.closed);
+        let path = &road.track;
+        assert!(!path.is_single_lane());
+        assert_eq!(path.road_half_width(), 0.20);
+        assert_eq!(path.lane_offset(), -0.10);
+        // Its centre line is the mat's: the same length within the chords' shortfall.
+        assert!(
+            (path.length() - mat.length()).abs() < 0.03,
+            "{} against {}",
+            path.length(),
+            mat.length()
+        );
+        let params = RewardParams::default();
+        let mut worst = 0.0f32;
+        for k in 0..(mat.length() / 0.07) as usize {
+            let s = k as f32 * 0.07;
+            // Across the whole road: the right lane, the centre line, the left lane.
+            for off in [-0.08, -0.04, 0.0, 0.07, 0.12, 0.2, 0.28] {
+                let p = mat.pose_at(s, mat.lane_offset() + off);
+                let on_mat = reward(mat.lane_edge_distance(p.x, p.y), 0.2, &params);
+                let on_path = reward(path.lane_edge_distance(p.x, p.y), 0.2, &params);
+                worst = worst.max((on_mat - on_path).abs());
+                assert!(path.on_road(p.x, p.y), "s {s} offset {off}: off the road");
+            }
+            // Beyond either edge: off the road on both.
+            for off in [-0.115, 0.315] {
+                let p = mat.pose_at(s, mat.lane_offset() + off);
+                assert!(!mat.on_road(p.x, p.y));
+                assert!(!path.on_road(p.x, p.y), "s {s} offset {off}: on the road");
+            }
+        }
+        assert!(worst < 0.01, "largest reward difference {worst}");
+        // An open path: the offset centre line keeps its ends.
+        let half_lap: Vec<Pose2> = lane[..n / 2].to_vec();
+        let open = road_from_path(&half_lap, &cfg, "t").unwrap();
+        assert!(!open.closed);
+        let q = open.track.query(lane[3].x, lane[3].y);
+        assert!((q.lateral + 0.10).abs() < 0.002, "{q:?}");
+    }
+
+    #[test]
     fn bad_paths_and_settings_are_named() {
         let still = vec![Pose2::new(0.3, 0.3, 0.0); 50];
         let e = road_from_path(&still, &PathRoadConfig::default(), "data/tub").unwrap_err();
@@ -458,5 +570,11 @@ mod tests {
         };
         let e = road_from_path(&circle(0.5, 1.0, 100), &cfg, "t").unwrap_err();
         assert!(e.to_string().contains("sim.path.lane_width_m"), "{e}");
+        let cfg = PathRoadConfig {
+            lanes: 3,
+            ..PathRoadConfig::default()
+        };
+        let e = road_from_path(&circle(0.5, 1.0, 100), &cfg, "t").unwrap_err();
+        assert!(e.to_string().contains("sim.path.lanes = 3"), "{e}");
     }
 }

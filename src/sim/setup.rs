@@ -68,6 +68,9 @@ pub struct SimConfig {
     pub recording: Option<PathBuf>,
     /// `replay` without `recording`: spacing of the frames the expert records, metres.
     pub record_spacing_m: f32,
+    /// Replay: a view turned further than this from its recorded frame ends the episode
+    /// (an intervention), degrees; VISTA's 18 by default.
+    pub replay_max_heading_deg: f32,
     pub control_hz: f32,
     pub physics_hz: f32,
     pub seed: u64,
@@ -97,6 +100,7 @@ impl Default for SimConfig {
             frames: FrameMode::Render,
             recording: None,
             record_spacing_m: 0.02,
+            replay_max_heading_deg: 18.0,
             control_hz: 30.0,
             physics_hz: 240.0,
             seed: 0,
@@ -217,7 +221,10 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
     let sim = &cfg.sim;
     if sim.road == RoadSource::Path {
         let (track, recording) = path_road(sim)?;
-        let frames = FrameMaker::Replay(Synthesizer::new(recording, track.road_half_width())?);
+        let frames = FrameMaker::Replay(
+            Synthesizer::new(recording, track.road_half_width())?
+                .with_max_heading_deg(sim.replay_max_heading_deg)?,
+        );
         return rig(cfg, track, frames);
     }
     let track = load_track(sim)?;
@@ -233,7 +240,10 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
                 source = %sim.recording.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "one expert lap".into()),
                 "replay: frames to re-project"
             );
-            FrameMaker::Replay(Synthesizer::new(recording, track.road_half_width())?)
+            FrameMaker::Replay(
+                Synthesizer::new(recording, track.road_half_width())?
+                    .with_max_heading_deg(sim.replay_max_heading_deg)?,
+            )
         }
     };
     rig(cfg, track, frames)

@@ -23,7 +23,8 @@
 //! that fall outside the recorded frame are clamped to its nearest edge pixel and count
 //! against [`SynthInfo::coverage`]. Synthesis is faithful only near the recording, so
 //! [`SynthInfo::valid`] turns false beyond half a road width or 18 degrees of heading error
-//! (VISTA's episode-end rule).
+//! (VISTA's episode-end rule; [`Synthesizer::with_max_heading_deg`] sets a wider heading
+//! bound for a wide lens).
 //!
 //! Frames are RGB8, row-major, top row first, `width * height * 3` bytes; pixel
 //! conventions are those of [`crate::sim::camera`].
@@ -36,7 +37,8 @@ use super::camera::CameraModel;
 use super::lens::Lens;
 use super::{Pose2, SimError, wrap_angle};
 
-/// Largest heading error (radians) at which a synthesised view counts as valid: 18 degrees.
+/// Largest heading error (radians) at which a synthesised view counts as valid by default:
+/// VISTA's 18 degrees (`sim.replay_max_heading_deg` sets another).
 pub const MAX_HEADING_ERROR_RAD: f32 = 18.0 * std::f32::consts::PI / 180.0;
 
 /// Weight of the heading difference in [`Synthesizer::nearest`], metres: a frame facing
@@ -71,7 +73,8 @@ pub struct SynthInfo {
     pub lateral_m: f32,
     /// `wrap(pose.heading - recorded.heading)`, radians.
     pub heading_error: f32,
-    /// `|lateral_m| <= half road width` and `|heading_error| <= 18 degrees`.
+    /// `|lateral_m| <= half road width` and `|heading_error| <=` the heading bound (18
+    /// degrees unless set).
     pub valid: bool,
     /// Fraction of the output's ground pixels whose source lies inside the recorded frame
     /// (1.0 when the output shows no ground).
@@ -83,6 +86,8 @@ pub struct SynthInfo {
 pub struct Synthesizer {
     recording: Recording,
     half_road_width_m: f32,
+    /// The heading bound of [`SynthInfo::valid`], radians.
+    max_heading_error_rad: f32,
     /// Per output pixel, row-major: the ground point `[forward, left]` (metres, robot
     /// frame) it sees, or `None` for no ground (above the horizon or too far).
     /// Built through the camera's lens, so it serves pinhole and fisheye alike.
@@ -238,6 +243,7 @@ impl Synthesizer {
         Ok(Self {
             recording,
             half_road_width_m,
+            max_heading_error_rad: MAX_HEADING_ERROR_RAD,
             ground,
             ground_pixels,
             to_recorded,
@@ -258,6 +264,23 @@ impl Synthesizer {
     /// Half the road width used for [`SynthInfo::valid`], metres.
     pub fn half_road_width_m(&self) -> f32 {
         self.half_road_width_m
+    }
+
+    /// The heading bound of [`SynthInfo::valid`]: `degrees` (above 0, at most 90) instead
+    /// of VISTA's 18.
+    pub fn with_max_heading_deg(mut self, degrees: f32) -> Result<Self, SimError> {
+        if !(degrees.is_finite() && degrees > 0.0 && degrees <= 90.0) {
+            return Err(SimError::Invalid(format!(
+                "sim.replay_max_heading_deg = {degrees}: allowed above 0, at most 90"
+            )));
+        }
+        self.max_heading_error_rad = degrees.to_radians();
+        Ok(self)
+    }
+
+    /// The heading bound of [`SynthInfo::valid`], radians.
+    pub fn max_heading_error_rad(&self) -> f32 {
+        self.max_heading_error_rad
     }
 
     /// Bytes in one frame: `width * height * 3`.
@@ -289,8 +312,8 @@ impl Synthesizer {
         let (s, c) = rec.heading.sin_cos();
         let lateral = -s * (pose.x - rec.x) + c * (pose.y - rec.y);
         let heading_error = wrap_angle(pose.heading - rec.heading);
-        let valid =
-            lateral.abs() <= self.half_road_width_m && heading_error.abs() <= MAX_HEADING_ERROR_RAD;
+        let valid = lateral.abs() <= self.half_road_width_m
+            && heading_error.abs() <= self.max_heading_error_rad;
         (lateral, heading_error, valid)
     }
 
@@ -741,7 +764,7 @@ mod tests {
     }
 
     #[test]
-    fn valid_turns_false_beyond_half_road_or_18_degrees() {
+    fn valid_turns_false_beyond_half_road_or_the_heading_bound() {
         let camera = CameraModel {
             width: 32,
             height: 32,
@@ -783,6 +806,31 @@ mod tests {
             &mut out,
         );
         assert!((info.heading_error - 0.1).abs() < 1e-4 && info.valid);
+        // A wider heading bound for a wide lens: 30 degrees.
+        let wide = synth.clone().with_max_heading_deg(30.0).unwrap();
+        assert!((wide.max_heading_error_rad() - 30f32.to_radians()).abs() < 1e-6);
+        assert!(
+            wide.synthesize_from(0, &side_step(a, 0.0, 25.0), &mut out)
+                .valid
+        );
+        assert!(
+            wide.synthesize_from(0, &side_step(a, 0.0, -29.5), &mut out)
+                .valid
+        );
+        assert!(
+            !wide
+                .synthesize_from(0, &side_step(a, 0.0, 31.0), &mut out)
+                .valid
+        );
+        assert!(
+            !wide
+                .synthesize_from(0, &side_step(a, 0.15, 0.0), &mut out)
+                .valid
+        );
+        for bad in [0.0, -5.0, 91.0, f32::NAN] {
+            let e = synth.clone().with_max_heading_deg(bad).unwrap_err();
+            assert!(e.to_string().contains("sim.replay_max_heading_deg"), "{e}");
+        }
     }
 
     #[test]

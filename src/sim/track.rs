@@ -498,6 +498,21 @@ impl Track {
         })
     }
 
+    /// A road of two lanes, each `lane_width` wide, whose centre line (the dashed line
+    /// between the lanes) is the polyline through `points`; the robot drives the right lane,
+    /// as on the JetBot mat. Otherwise as [`Track::from_polyline`].
+    pub fn two_lanes_from_polyline(
+        name: &str,
+        points: &[(f64, f64)],
+        closed: bool,
+        lane_width: f64,
+        mat: (f64, f64),
+    ) -> Result<Track> {
+        let mut track = Self::from_polyline(name, points, closed, lane_width, mat)?;
+        track.single_lane = false;
+        Ok(track)
+    }
+
     /// Whether the centre line is a loop (progress wraps at [`Track::length`]).
     pub fn is_closed(&self) -> bool {
         self.closed

@@ -50,6 +50,36 @@ pub struct WorldStats {
     pub progress_m: f64,
     /// Where each intervention happened.
     pub intervention_poses: Vec<Pose2>,
+    /// Why the interventions happened.
+    pub causes: InterventionCauses,
+}
+
+/// The interventions counted by what ended each one (the first that applies, in this order).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct InterventionCauses {
+    /// The robot left the road.
+    pub off_road: u32,
+    /// A replayed view farther sideways from its recorded frame than half the road's width.
+    pub replay_offset: u32,
+    /// A replayed view turned from its recorded frame by more than the heading bound
+    /// (`sim.replay_max_heading_deg`, VISTA's 18 degrees by default).
+    pub replay_heading: u32,
+    /// Too little progress within the stall rule's window.
+    pub stalled: u32,
+}
+
+impl InterventionCauses {
+    /// Those of the replay's validity bounds.
+    pub fn replay(&self) -> u32 {
+        self.replay_offset + self.replay_heading
+    }
+}
+
+/// Why the last replayed view was out of its validity bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ViewBound {
+    Offset,
+    Heading,
 }
 
 /// The outcome of one control period.
@@ -77,7 +107,8 @@ pub struct World {
     rng: ChaCha8Rng,
     pub stats: WorldStats,
     last_s: f32,
-    view_valid: bool,
+    /// The last replayed view's broken validity bound (`None`: valid, or rendered).
+    view_out: Option<ViewBound>,
     stall: StallRule,
     /// Simulated time and progress at the start of the current stall window.
     stall_window: (f64, f64),
@@ -150,7 +181,7 @@ impl World {
             rng: ChaCha8Rng::seed_from_u64(seed),
             stats: WorldStats::default(),
             last_s: 0.0,
-            view_valid: true,
+            view_out: None,
             stall: StallRule::default(),
             stall_window: (0.0, 0.0),
             appearance: None,
@@ -168,7 +199,7 @@ impl World {
         let pose = self.track.lane_pose_at(s);
         self.robot.reset(pose);
         self.last_s = self.track.query(pose.x, pose.y).s;
-        self.view_valid = true;
+        self.view_out = None;
         if let Some(a) = self.appearance.as_mut() {
             a.reset();
         }
@@ -180,7 +211,7 @@ impl World {
     pub fn place(&mut self, pose: Pose2) {
         self.robot.reset(pose);
         self.last_s = self.track.query(pose.x, pose.y).s;
-        self.view_valid = true;
+        self.view_out = None;
         if let Some(a) = self.appearance.as_mut() {
             a.redraw();
         }
@@ -279,10 +310,17 @@ impl World {
         match &self.frames {
             FrameMaker::Render(r) => {
                 r.render(&pose, out);
-                self.view_valid = true;
+                self.view_out = None;
             }
             FrameMaker::Replay(s) => {
-                self.view_valid = s.synthesize(&pose, out).valid;
+                let info = s.synthesize(&pose, out);
+                self.view_out = if info.valid {
+                    None
+                } else if info.heading_error.abs() > s.max_heading_error_rad() {
+                    Some(ViewBound::Heading)
+                } else {
+                    Some(ViewBound::Offset)
+                };
             }
         }
         if let Some(a) = self.appearance.as_mut() {
@@ -401,7 +439,15 @@ impl World {
                 self.stall_window = (self.stats.time_s, self.stats.progress_m);
                 progress < self.stall.min_progress_m as f64
             };
-        if stalled || !self.track.on_road(p.x, p.y) || !self.view_valid {
+        let off_road = !self.track.on_road(p.x, p.y);
+        if stalled || off_road || self.view_out.is_some() {
+            let c = &mut self.stats.causes;
+            match (off_road, self.view_out) {
+                (true, _) => c.off_road += 1,
+                (false, Some(ViewBound::Offset)) => c.replay_offset += 1,
+                (false, Some(ViewBound::Heading)) => c.replay_heading += 1,
+                (false, None) => c.stalled += 1,
+            }
             self.stall_window = (self.stats.time_s, self.stats.progress_m);
             self.stats.interventions += 1;
             self.stats.intervention_poses.push(p);

@@ -9,6 +9,7 @@ use crate::policy::Policy;
 use crate::sim::closed_loop::{self, Pilot};
 use crate::sim::reward::autonomy;
 use crate::sim::setup;
+use crate::sim::world::InterventionCauses;
 use crate::train::TrainError;
 
 /// What one test gave.
@@ -16,6 +17,8 @@ use crate::train::TrainError;
 pub struct EvalOutcome {
     pub seconds: f64,
     pub interventions: u32,
+    /// What ended each intervention (off the road, the replay's bounds, the stall rule).
+    pub causes: InterventionCauses,
     pub autonomy_percent: f32,
     pub rewards: u64,
     pub mean_reward: f64,
@@ -58,6 +61,7 @@ pub fn evaluate(
     Ok(EvalOutcome {
         seconds: s.time_s,
         interventions: s.interventions,
+        causes: s.causes,
         autonomy_percent: autonomy(s.interventions, s.time_s as f32),
         rewards: s.rewards,
         mean_reward: s.reward_sum / s.control_steps.max(1) as f64,
