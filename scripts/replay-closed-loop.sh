@@ -31,8 +31,8 @@
 # default: build target/release/jetpilot),
 # ILDDPG_FLAGS (default: the levers of README's experiment with smaller steering noise, no
 # failure resets and the pull towards the imitation policy kept: on the path road the
-# rendered mat's OU 0.3 left the replay's bounds within seconds, and once the pull had
-# decayed the actor collapsed), POSES (default "true est": which replays get IL + DDPG), IL_SWERVE
+# rendered mat's OU 0.3 left the replay's bounds within seconds, and as the pull decayed
+# the actor collapsed), POSES (default "true est": which replays get IL + DDPG), IL_SWERVE
 # (the demonstration drive's seconds between swerves, default 4; the replayed drive's are
 # 3, so the two drives differ), PATH_LANES (default 2: the drive is the right lane of the
 # mat's two-lane road, so drifting into the other lane costs reward, as on the rendered

@@ -630,12 +630,12 @@ fn replay_from_a_recorded_tub_and_realtime_under_the_real_daemon() {
     // its recorded frame long before the stall rule's window ends, and that is what each
     // intervention is counted as.
     let mut rig = setup::build(&Config::parse(&path_road, "path.toml").unwrap()).unwrap();
+    let mut frame = vec![0u8; 48 * 48 * 3];
     for _ in 0..(6 * 30) {
         rig.motors.drive(WheelCommand::new(0.3, -0.3)).unwrap();
         for _ in 0..8 {
             rig.world.advance(1.0 / 240.0);
         }
-        let mut frame = vec![0u8; 48 * 48 * 3];
         rig.world.observe(&mut frame);
         rig.world.score();
     }

@@ -6,10 +6,11 @@
 //! minus half a lane width. With `lanes = 2` (the JetBot mat: the recording drove the right
 //! lane of a two-lane road) the road reaches one more lane to the path's left, so leaving
 //! the lane to the left costs reward but is not an intervention until the road's far edge
-//! (or the replay's validity bound, half the road's width from the nearest recorded frame). A path that
-//! comes back to where it started (within half a lane width, heading within 45 degrees,
-//! after going at least a metre away) is closed into a loop at its first return, and
-//! progress wraps there; otherwise the road is open and ends where the recording does.
+//! (or the replay's validity bound, half the road's width from the nearest recorded
+//! frame). A path that comes back to where it started (within half a lane width, heading
+//! within 45 degrees, after going at least a metre away) is closed into a loop at its first
+//! return, and progress wraps there; otherwise the road is open and ends where the
+//! recording does.
 //!
 //! No smoothing: a moving average would pull curves inwards, and the poses are already a
 //! fused estimate. Recorded points closer than [`MIN_STEP_M`] to the last kept one (a car
