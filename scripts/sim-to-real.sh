@@ -4,8 +4,8 @@
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)
 #
-# Six policies, the same recipe (600 sim frames, 96x96 input, EPOCHS epochs, default
-# 20), differing only in what the simulator showed them:
+# Six policies, the same recipe (FRAMES sim frames, default 600; 96x96 input; EPOCHS
+# epochs, default 20), differing only in what the simulator showed them:
 #   plain:      --camera pinhole (the simulator's first camera), plain appearance (the
 #               starting point);
 #   randomised: --camera jetbot (the fitted fisheye) and --randomise (camera looks, road
@@ -38,6 +38,9 @@ cd "$(dirname "$0")/.."
 REAL=${1:-}
 OUT=${2:-.cache/sim-to-real}
 EPOCHS=${EPOCHS:-20}
+FRAMES=${FRAMES:-600}
+# A drive records every third step (10 a second) for 4/3 of the frames' time: 80 s for 600.
+SECONDS_DRIVEN=$(( (FRAMES * 2 + 14) / 15 ))
 TRACK=${TRACK:-config/tracks/narrow_print.toml}
 LOOKAHEAD=${LOOKAHEAD:-0.135}
 TILT=${TILT:-[15.0, 40.0]}
@@ -70,9 +73,10 @@ run() {
   rm -rf "$d"
   mkdir -p "$d"
   local cfg=${SIM_CFG:-$CFG}
-  local source=(--scatter 600)
+  local source=(--scatter "$FRAMES")
   if [ "$mode" = drive ]; then
-    source=(--expert --seconds 80 --record-every 3 --record-frames 600 --record "$d/demos")
+    source=(--expert --seconds "$SECONDS_DRIVEN" --record-every 3 --record-frames "$FRAMES"
+      --record "$d/demos")
   fi
   "$B" -q sim --config "$cfg" "${source[@]}" "$@" --record-xy "$d/xy" --png "$d/look" \
     --real "$REAL" > "$d/sim.log"

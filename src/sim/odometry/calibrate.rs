@@ -56,15 +56,23 @@ fn weighted_scale(triples: impl Iterator<Item = (f64, f64, f64)>) -> (Option<f64
 
 /// Least-squares scales over the frames that measure each direction well: forward to
 /// 0.5 mm while the wheels predict at least 3 mm, the turn to 0.003 rad while they predict
-/// at least 0.008 rad.
-pub fn fit(samples: &[Sample]) -> Scales {
+/// at least 0.008 rad. Vision's claimed variances are first multiplied by
+/// `overconfidence` (at least 1; [`overconfidence`]): where vision is known to claim more
+/// than it measures, fewer frames count as well measured, and with fewer than
+/// [`MIN_FRAMES`] the wheel model is left as configured.
+pub fn fit(samples: &[Sample], overconfidence: f64) -> Scales {
+    let inflate = if overconfidence.is_finite() {
+        overconfidence.max(1.0).sqrt()
+    } else {
+        1.0
+    };
     let fit_one = |pick: &dyn Fn(&Motion) -> f32, i: usize, sd_max: f64, min_prior: f32| {
         let well_measured = samples
             .iter()
             .filter(|s| s.vision.converged)
             .filter_map(|s| {
                 let p = pick(&s.prior);
-                let sd = marginal_sd(&s.vision, i);
+                let sd = marginal_sd(&s.vision, i) * inflate;
                 if p.abs() < min_prior || sd.is_nan() || sd > sd_max {
                     return None;
                 }
@@ -93,6 +101,17 @@ pub fn fit(samples: &[Sample]) -> Scales {
         turn: clamp(turn),
         speed_frames,
         turn_frames,
+    }
+}
+
+/// How much more vision claims than it measures, as the fit and the fused pass use it:
+/// `scatter / reference` where vision's scatter ([`scatter`]) is above `reference`, else 1
+/// (`reference` 0: always 1). The same rule raises the wheels' weight in the fused pass
+/// ([`super::held_harder`]).
+pub fn overconfidence(scatter: Option<f64>, reference: f64) -> f64 {
+    match scatter {
+        Some(s) if reference > 0.0 && s > reference => s / reference,
+        _ => 1.0,
     }
 }
 
@@ -193,13 +212,34 @@ mod tests {
                 [10.0, 10.0, 10.0],
             ));
         }
-        let f = fit(&s);
+        let f = fit(&s, 1.0);
         assert!((f.speed - 0.9).abs() < 1e-4, "{f:?}");
         assert!((f.turn - 1.15).abs() < 1e-4, "{f:?}");
         assert_eq!((f.speed_frames, f.turn_frames), (30, 25));
         // Too few frames: no correction.
-        let f = fit(&s[..10]);
+        let f = fit(&s[..10], 1.0);
         assert_eq!((f.speed, f.turn), (1.0, 1.0));
+        // Vision 4 times overconfident: every claimed sd doubles. The turning frames' 0.32
+        // mrad (information 1e7) becomes 0.63, still under 3 mrad: the same fit.
+        let f = fit(&s, 4.0);
+        assert_eq!((f.speed_frames, f.turn_frames), (30, 25));
+        assert!((f.turn - 1.15).abs() < 1e-4, "{f:?}");
+        // 100 times: forward's 0.1 mm becomes 1 mm (over 0.5), the turn's 3.2 mrad (over
+        // 3): nothing counts as well measured, and the model stays as configured.
+        let f = fit(&s, 100.0);
+        assert_eq!((f.speed, f.turn), (1.0, 1.0), "{f:?}");
+        assert_eq!((f.speed_frames, f.turn_frames), (0, 0));
+        // Below 1 or not a number: as 1.
+        assert_eq!(fit(&s, 0.5), fit(&s, 1.0));
+        assert_eq!(fit(&s, f64::NAN), fit(&s, 1.0));
+    }
+
+    #[test]
+    fn overconfidence_is_the_scatter_above_its_reference() {
+        assert!((overconfidence(Some(11.19), 4.0) - 2.7975).abs() < 1e-9);
+        assert_eq!(overconfidence(Some(3.9), 4.0), 1.0);
+        assert_eq!(overconfidence(None, 4.0), 1.0);
+        assert_eq!(overconfidence(Some(11.19), 0.0), 1.0, "0: off");
     }
 
     #[test]

@@ -45,8 +45,9 @@ pub struct OdometryParams {
     /// ([`calibrate`]), then estimate with the corrected model.
     pub calibrate: bool,
     /// With calibration: where vision's own motions scatter about the wheels' by more
-    /// than this ([`calibrate::scatter`]), the wheels hold the fused pass harder: the
-    /// prior's weight is multiplied by `scatter / this`. 0: off. 4 by default: above the
+    /// than this ([`calibrate::scatter`]), vision is taken to be `scatter / this` times
+    /// overconfident: the calibration counts fewer frames as well measured, and the
+    /// wheels hold the fused pass harder (the prior's weight is multiplied by it). 0: off. 4 by default: above the
     /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; README's
     /// odometry study), below the 4.6-14 of looks where it pulled the estimate off.
     pub scatter_ref: f64,
@@ -231,10 +232,7 @@ impl Estimate {
 /// The wheel prior's weight for the fused pass: `weight`, raised by `scatter / reference`
 /// where vision scatters about the wheels by more than `reference` (0: never).
 pub fn held_harder(weight: f32, scatter: Option<f64>, reference: f64) -> f32 {
-    match scatter {
-        Some(s) if reference > 0.0 && s > reference => weight * (s / reference) as f32,
-        _ => weight,
-    }
+    weight * calibrate::overconfidence(scatter, reference) as f32
 }
 
 /// Runs the odometer over `tub`'s live records from `start` (the first frame's pose). The
@@ -262,8 +260,10 @@ pub fn estimate(
     let (scales, scatter) = if params.calibrate {
         let mut odo = Odometer::new(camera, robot, params, start).calibrating();
         pass(tub, &records, camera, &opts, &mut odo, &mut Vec::new())?;
-        let scales = calibrate::fit(odo.samples());
-        (Some(scales), calibrate::scatter(odo.samples()))
+        let scatter = calibrate::scatter(odo.samples());
+        let overconfidence = calibrate::overconfidence(scatter, params.scatter_ref);
+        let scales = calibrate::fit(odo.samples(), overconfidence);
+        (Some(scales), scatter)
     } else {
         (None, None)
     };
