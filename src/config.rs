@@ -739,6 +739,21 @@ mod tests {
     }
 
     #[test]
+    fn the_replay_fill_is_read_and_a_wrong_one_named() {
+        use crate::sim::setup::ReplayFill;
+        assert_eq!(
+            Config::parse("", "t.toml").unwrap().sim.replay_fill,
+            ReplayFill::Earlier
+        );
+        let cfg = Config::parse("[sim]\nreplay_fill = \"edge\"\n", "t.toml").unwrap();
+        assert_eq!(cfg.sim.replay_fill, ReplayFill::Edge);
+        let err = Config::parse("[sim]\nreplay_fill = \"mirror\"\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("sim.replay_fill"), "{err}");
+    }
+
+    #[test]
     fn wrong_type_names_the_key() {
         let err = Config::parse("[safety]\nwatchdog_ms = \"fast\"\n", "x.toml")
             .unwrap_err()

@@ -48,6 +48,18 @@ pub enum RoadSource {
     Path,
 }
 
+/// Where a replayed view's ground comes from when the nearest recorded frame did not see
+/// it (a view moved sideways or turned: the floor just in front and to the side).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ReplayFill {
+    /// From the frames recorded 6-28 cm further back along the recording, which saw it.
+    #[default]
+    Earlier,
+    /// The nearest frame's edge pixel, smeared (the single-frame synthesis).
+    Edge,
+}
+
 /// `[sim]`: the simulator. Every key has a default.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -71,6 +83,8 @@ pub struct SimConfig {
     /// Replay: a view turned further than this from its recorded frame ends the episode
     /// (an intervention), degrees; VISTA's 18 by default.
     pub replay_max_heading_deg: f32,
+    /// Replay: where ground the nearest frame did not see comes from.
+    pub replay_fill: ReplayFill,
     pub control_hz: f32,
     pub physics_hz: f32,
     pub seed: u64,
@@ -101,6 +115,7 @@ impl Default for SimConfig {
             recording: None,
             record_spacing_m: 0.02,
             replay_max_heading_deg: 18.0,
+            replay_fill: ReplayFill::Earlier,
             control_hz: 30.0,
             physics_hz: 240.0,
             seed: 0,
@@ -223,7 +238,8 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
         let (track, recording) = path_road(sim)?;
         let frames = FrameMaker::Replay(
             Synthesizer::new(recording, track.road_half_width())?
-                .with_max_heading_deg(sim.replay_max_heading_deg)?,
+                .with_max_heading_deg(sim.replay_max_heading_deg)?
+                .with_fill_from_earlier(sim.replay_fill == ReplayFill::Earlier),
         );
         return rig(cfg, track, frames);
     }
@@ -242,7 +258,8 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
             );
             FrameMaker::Replay(
                 Synthesizer::new(recording, track.road_half_width())?
-                    .with_max_heading_deg(sim.replay_max_heading_deg)?,
+                    .with_max_heading_deg(sim.replay_max_heading_deg)?
+                    .with_fill_from_earlier(sim.replay_fill == ReplayFill::Earlier),
             )
         }
     };

@@ -20,8 +20,12 @@
 //!
 //! Output pixels with no ground (above the horizon, or beyond the camera's ground range)
 //! copy the recorded pixel at the same `(u, v)`: walls far away barely move. Ground points
-//! that fall outside the recorded frame are clamped to its nearest edge pixel and count
-//! against [`SynthInfo::coverage`]. Synthesis is faithful only near the recording, so
+//! that fall outside the recorded frame (the floor just in front and to the side of a view
+//! moved sideways or turned) are looked up in the frames recorded 6, 14 and 28 cm further
+//! back, which drove towards that floor; where none saw it (or with
+//! [`Synthesizer::with_fill_from_earlier`] off) they are clamped to the frame's nearest
+//! edge pixel and count against [`SynthInfo::coverage`]. Only the ground moves: what the
+//! camera adds to every frame in the same place (glare, vignetting) moves with it. Synthesis is faithful only near the recording, so
 //! [`SynthInfo::valid`] turns false beyond half a road width or 18 degrees of heading error
 //! (VISTA's episode-end rule; [`Synthesizer::with_max_heading_deg`] sets a wider heading
 //! bound for a wide lens).
@@ -77,7 +81,7 @@ pub struct SynthInfo {
     /// degrees unless set).
     pub valid: bool,
     /// Fraction of the output's ground pixels whose source lies inside the recorded frame
-    /// (1.0 when the output shows no ground).
+    /// or an earlier one that fills it (1.0 when the output shows no ground).
     pub coverage: f32,
 }
 
@@ -99,7 +103,17 @@ pub struct Synthesizer {
     to_recorded: Vec<Matrix3<f32>>,
     /// How a recorded camera's `to_recorded` output becomes a pixel.
     projection: Projection,
+    /// Per recorded frame: earlier frames about [`EARLIER_M`] back along the recording
+    /// (`u32::MAX`: none), which saw the ground now just in front of it.
+    earlier: Vec<[u32; EARLIER_M.len()]>,
+    /// Fill ground that the frame did not see from [`Self::earlier`] frames.
+    fill_from_earlier: bool,
 }
+
+/// How far back along the recording (metres of path) the frames lie that fill ground the
+/// nearest frame did not see: a JetBot's fisheye sees the floor from about 8 cm ahead, so
+/// a view moved sideways or turned needs the floor that frames 5-30 cm back saw.
+const EARLIER_M: [f32; 3] = [0.06, 0.14, 0.28];
 
 /// Fisheye frames at least this wide project every other pixel of a row and interpolate
 /// the rest ([`Synthesizer::remap`]).
@@ -240,6 +254,7 @@ impl Synthesizer {
                 Projection::Fisheye { .. } => camera.ground_to_ray(&f.pose),
             })
             .collect();
+        let earlier = earlier_frames(&recording.frames);
         Ok(Self {
             recording,
             half_road_width_m,
@@ -248,7 +263,17 @@ impl Synthesizer {
             ground_pixels,
             to_recorded,
             projection,
+            earlier,
+            fill_from_earlier: true,
         })
+    }
+
+    /// Whether ground the chosen frame did not see comes from earlier frames (true, the
+    /// default) or is clamped to the chosen frame's nearest edge pixel (false: the
+    /// single-frame synthesis, `sim.replay_fill = "edge"`).
+    pub fn with_fill_from_earlier(mut self, on: bool) -> Self {
+        self.fill_from_earlier = on;
+        self
     }
 
     /// The recording frames are synthesised from.
@@ -346,13 +371,27 @@ impl Synthesizer {
         let (s, c) = pose.heading.sin_cos();
         let to_world = Matrix3::new(c, -s, pose.x, s, c, pose.y, 0.0, 0.0, 1.0);
         let m = self.to_recorded[index] * to_world;
-        let inside = match self.projection {
-            Projection::Pinhole => self.remap(&m, src, w, h, out, false, pinhole_pixel),
-            Projection::Fisheye { fx, fy, cu, cv, k } => {
-                self.remap(&m, src, w, h, out, w >= HALVE_FROM_WIDTH, |x, y, z| {
-                    fisheye_pixel(x, y, z, (fx, fy), cu, cv, &k)
-                })
+        // Earlier frames for the ground this one did not see (at most EARLIER_M.len()).
+        let mut fill: [Option<(Matrix3<f32>, &[u8])>; EARLIER_M.len()] = [None; EARLIER_M.len()];
+        if self.fill_from_earlier {
+            for (slot, &e) in fill.iter_mut().zip(self.earlier[index].iter()) {
+                if let Some(f) = self.recording.frames.get(e as usize) {
+                    *slot = Some((self.to_recorded[e as usize] * to_world, &f.rgb[..]));
+                }
             }
+        }
+        let inside = match self.projection {
+            Projection::Pinhole => self.remap(&m, src, w, h, &fill, out, false, pinhole_pixel),
+            Projection::Fisheye { fx, fy, cu, cv, k } => self.remap(
+                &m,
+                src,
+                w,
+                h,
+                &fill,
+                out,
+                w >= HALVE_FROM_WIDTH,
+                |x, y, z| fisheye_pixel(x, y, z, (fx, fy), cu, cv, &k),
+            ),
         };
         let coverage = if self.ground_pixels == 0 {
             1.0
@@ -371,8 +410,10 @@ impl Synthesizer {
 
     /// Fills `out` from the recorded frame `src` (`w x h`): each output ground pixel's
     /// point goes through `m` (robot ground -> recorded camera) and `project`, and is
-    /// sampled bilinearly; pixels with no ground copy `src` at the same place. Returns how
-    /// many ground pixels came from inside the recorded frame.
+    /// sampled bilinearly; pixels with no ground copy `src` at the same place. A ground
+    /// point outside `src` is looked up in the `fill` frames in turn (their own `m` and
+    /// pixels), and clamped to `src`'s nearest edge pixel where none saw it. Returns how
+    /// many ground pixels came from inside a recorded frame.
     ///
     /// With `halve`, only every other pixel of a row is projected: a pixel between two
     /// projected ground pixels takes the mean of their recorded coordinates (the map is
@@ -387,6 +428,7 @@ impl Synthesizer {
         src: &[u8],
         w: usize,
         h: usize,
+        fill: &[Option<(Matrix3<f32>, &[u8])>],
         out: &mut [u8],
         halve: bool,
         project: P,
@@ -411,23 +453,16 @@ impl Synthesizer {
                 None => (if pu >= 0.0 { wf } else { 0.0 }, hf, false),
             })
         };
-        let mut inside = 0usize;
-        let mut put = |k: usize, at: Option<(f32, f32, bool)>, px: &mut [u8]| {
-            let Some((u, v, seen)) = at else {
-                px.copy_from_slice(&src[k * 3..k * 3 + 3]);
-                return;
-            };
-            if seen && u >= 0.0 && u <= wf && v >= 0.0 && v <= hf {
-                inside += 1;
-            }
-            // Bilinear, pixel centres at integer + 0.5; clamped to the frame.
+        let in_frame = |u: f32, v: f32| u >= 0.0 && u <= wf && v >= 0.0 && v <= hf;
+        // Bilinear, pixel centres at integer + 0.5; clamped to the frame.
+        let sample = |from: &[u8], u: f32, v: f32, px: &mut [u8]| {
             let tx = (u - 0.5).max(0.0).min(max_x);
             let ty = (v - 0.5).max(0.0).min(max_y);
             let (x0, y0) = (tx as usize, ty as usize);
             let (fx, fy) = (tx - x0 as f32, ty - y0 as f32);
             let i00 = (y0 * w + x0) * 3;
             let i10 = i00 + w * 3;
-            let (Some(r0), Some(r1)) = (src.get(i00..i00 + 6), src.get(i10..i10 + 6)) else {
+            let (Some(r0), Some(r1)) = (from.get(i00..i00 + 6), from.get(i10..i10 + 6)) else {
                 px.fill(0);
                 return;
             };
@@ -439,6 +474,33 @@ impl Synthesizer {
                 let top = a + (b - a) * fx;
                 let bot = d + (e - d) * fx;
                 px[ch] = (top + (bot - top) * fy + 0.5) as u8;
+            }
+        };
+        // Output pixel `k`'s ground point in an earlier frame, if that frame saw it.
+        let earlier = |k: usize| -> Option<(&[u8], f32, f32)> {
+            let [f, l] = self.ground.get(k).copied().flatten()?;
+            fill.iter().flatten().find_map(|(mf, from)| {
+                let pu = mf[(0, 0)] * f + mf[(0, 1)] * l + mf[(0, 2)];
+                let pv = mf[(1, 0)] * f + mf[(1, 1)] * l + mf[(1, 2)];
+                let pw = mf[(2, 0)] * f + mf[(2, 1)] * l + mf[(2, 2)];
+                let (u, v) = project(pu, pv, pw)?;
+                in_frame(u, v).then_some((*from, u, v))
+            })
+        };
+        let mut inside = 0usize;
+        let mut put = |k: usize, at: Option<(f32, f32, bool)>, px: &mut [u8]| {
+            let Some((u, v, seen)) = at else {
+                px.copy_from_slice(&src[k * 3..k * 3 + 3]);
+                return;
+            };
+            if seen && in_frame(u, v) {
+                inside += 1;
+                sample(src, u, v, px);
+            } else if let Some((from, ue, ve)) = earlier(k) {
+                inside += 1;
+                sample(from, ue, ve, px);
+            } else {
+                sample(src, u, v, px);
             }
         };
 
@@ -475,6 +537,41 @@ impl Synthesizer {
         }
         inside
     }
+}
+
+/// For each frame, the frames about [`EARLIER_M`] back along the recording's path (the
+/// first frame at least that far back, by the summed distance between consecutive
+/// frames; `u32::MAX` where the recording starts too late). A jump of more than 0.2 m
+/// between consecutive frames (a recording of separate runs) starts the path afresh.
+fn earlier_frames(frames: &[RecordedFrame]) -> Vec<[u32; EARLIER_M.len()]> {
+    const JUMP_M: f32 = 0.2;
+    let mut along = Vec::with_capacity(frames.len());
+    let mut run_start = Vec::with_capacity(frames.len());
+    let (mut s, mut start) = (0.0f32, 0usize);
+    for (i, f) in frames.iter().enumerate() {
+        if i > 0 {
+            let p = frames[i - 1].pose;
+            let d = (f.pose.x - p.x).hypot(f.pose.y - p.y);
+            if d > JUMP_M {
+                start = i;
+            } else {
+                s += d;
+            }
+        }
+        along.push(s);
+        run_start.push(start);
+    }
+    (0..frames.len())
+        .map(|i| {
+            EARLIER_M.map(|back| {
+                let target = along[i] - back;
+                (run_start[i]..i)
+                    .rev()
+                    .find(|&j| along[j] <= target)
+                    .map_or(u32::MAX, |j| j as u32)
+            })
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -685,6 +782,94 @@ mod tests {
             lens: crate::sim::camera::LensKind::Fisheye,
             ..CameraModel::pinhole(224, 224)
         }
+    }
+
+    #[test]
+    fn ground_the_frame_did_not_see_comes_from_an_earlier_frame() {
+        // Two frames up the straight (x = 0.9, heading +y), 14 cm apart; the view from the
+        // second, turned 25 degrees right and 3 cm left, misses floor near its bottom-right
+        // corner that the first frame saw.
+        let cam = jetbot_fisheye(224);
+        let r = renderer(cam);
+        let a = Pose2::new(0.9, 0.5, FRAC_PI_2);
+        let b = Pose2::new(0.9, 0.64, FRAC_PI_2);
+        let rec = Recording {
+            camera: cam,
+            frames: vec![frame(&r, a), frame(&r, b)],
+        };
+        let view = side_step(b, 0.03, -25.0);
+        let mut direct = vec![0u8; r.frame_len()];
+        r.render(&view, &mut direct);
+        let ground: Vec<bool> = (0..cam.height)
+            .flat_map(|j| (0..cam.width).map(move |i| (i, j)))
+            .map(|(i, j)| {
+                cam.pixel_to_robot_ground(i as f32 + 0.5, j as f32 + 0.5)
+                    .is_some()
+            })
+            .collect();
+        // The pixels the second frame did not see.
+        let missed: Vec<bool> = inside_mask(&cam, &b, &view)
+            .iter()
+            .zip(&ground)
+            .map(|(&inside, &g)| g && !inside)
+            .collect();
+        let n_missed = missed.iter().filter(|&&m| m).count();
+        assert!(n_missed > 1000, "{n_missed} pixels missed");
+
+        let mut out = vec![0u8; r.frame_len()];
+        let synth = Synthesizer::new(rec, 0.14).unwrap();
+        let edge = synth.clone().with_fill_from_earlier(false);
+        let info_edge = edge.synthesize_from(1, &view, &mut out);
+        let p_edge = psnr(&out, &direct, &missed);
+        let info = synth.synthesize_from(1, &view, &mut out);
+        let p_fill = psnr(&out, &direct, &missed);
+        println!(
+            "missed {n_missed} px: edge {p_edge:.2} dB (coverage {:.3}), earlier frame \
+             {p_fill:.2} dB (coverage {:.3})",
+            info_edge.coverage, info.coverage
+        );
+        assert!(info_edge.coverage < 0.97, "{info_edge:?}");
+        assert!(info.coverage > 0.95, "{info:?}");
+        assert!(
+            p_fill > 24.0 && p_fill > p_edge + 6.0,
+            "{p_fill} vs {p_edge}"
+        );
+        // Seen pixels are the same either way.
+        let seen: Vec<bool> = inside_mask(&cam, &b, &view);
+        let mut out_edge = vec![0u8; r.frame_len()];
+        edge.synthesize_from(1, &view, &mut out_edge);
+        assert_eq!(psnr(&out, &out_edge, &seen), f64::INFINITY);
+        // The first frame has nothing earlier: as the single-frame synthesis.
+        let v0 = side_step(a, 0.03, -25.0);
+        synth.synthesize_from(0, &v0, &mut out);
+        edge.synthesize_from(0, &v0, &mut out_edge);
+        assert_eq!(out, out_edge);
+    }
+
+    #[test]
+    fn earlier_frames_are_found_by_distance_along_the_recording() {
+        let f = |x: f32| RecordedFrame {
+            pose: Pose2::new(x, 0.0, 0.0),
+            width: 1,
+            height: 1,
+            rgb: Arc::new(vec![0; 3]),
+        };
+        // Every 2.5 cm up to 0.40 m, then a jump of 1 m (another run) and two more frames.
+        let mut frames: Vec<RecordedFrame> = (0..=16).map(|i| f(i as f32 * 0.025)).collect();
+        frames.push(f(1.40));
+        frames.push(f(1.425));
+        let e = earlier_frames(&frames);
+        let none = u32::MAX;
+        assert_eq!(e[0], [none, none, none]);
+        // Frame 4 (0.10 m): 6 cm back is 0.04 -> frame 1 (0.025); 14 and 28 cm: none.
+        assert_eq!(e[4], [1, none, none]);
+        // Frame 12 (0.30 m): 0.24 -> 9 (0.225), 0.16 -> 6 (0.15), 0.02 -> 0.
+        assert_eq!(e[12], [9, 6, 0]);
+        // Frame 16 (0.40 m): 0.34 -> 13, 0.26 -> 10, 0.12 -> 4.
+        assert_eq!(e[16], [13, 10, 4]);
+        // After the jump the path starts afresh: nothing 6 cm back.
+        assert_eq!(e[17], [none, none, none]);
+        assert_eq!(e[18], [none, none, none]);
     }
 
     #[test]
