@@ -101,13 +101,13 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
             })
             .collect();
         let edge = synth.clone().with_fill_from_earlier(false);
-        for (name, s) in [("earlier frames", &synth), ("edge pixel", &edge)] {
+        for (name, s) in [("earlier frames", &synth), ("edge", &edge)] {
             let (t50, t90) = time_ms(iterations, |i| {
                 s.synthesize(&turned[i as usize % 64], &mut out);
             });
             println!(
                 "  {:<52} {:>8.3} {:>8.3}",
-                format!("  turned 20 degrees, unseen floor from the {name}"),
+                format!("  turned 20 deg, unseen floor from {name}"),
                 t50,
                 t90
             );
