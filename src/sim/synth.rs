@@ -24,11 +24,11 @@
 //! moved sideways or turned) are looked up in the frames recorded 6, 14 and 28 cm further
 //! back, which drove towards that floor; where none saw it (or with
 //! [`Synthesizer::with_fill_from_earlier`] off) they are clamped to the frame's nearest
-//! edge pixel and count against [`SynthInfo::coverage`]. Only the ground moves: what the
-//! camera adds to every frame in the same place (glare, vignetting) moves with it. Synthesis is faithful only near the recording, so
-//! [`SynthInfo::valid`] turns false beyond half a road width or 18 degrees of heading error
-//! (VISTA's episode-end rule; [`Synthesizer::with_max_heading_deg`] sets a wider heading
-//! bound for a wide lens).
+//! edge pixel and count against [`SynthInfo::coverage`]. Only the ground is re-projected:
+//! what the camera adds to every frame in the same place (glare, vignetting) moves with
+//! it. Synthesis is faithful only near the recording, so [`SynthInfo::valid`] turns false
+//! beyond half a road width or 18 degrees of heading error (VISTA's episode-end rule;
+//! [`Synthesizer::with_max_heading_deg`] sets a wider heading bound for a wide lens).
 //!
 //! Frames are RGB8, row-major, top row first, `width * height * 3` bytes; pixel
 //! conventions are those of [`crate::sim::camera`].
