@@ -33,6 +33,11 @@ fn time_ms(iterations: u32, mut f: impl FnMut(u32)) -> (f32, f32) {
     (s.p50, s.p90)
 }
 
+/// One line of the table: the label, then the median and p90 in milliseconds.
+fn row(label: &str, (median, p90): (f32, f32)) {
+    println!("  {label:<52} {median:>8.3} {p90:>8.3}");
+}
+
 pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
     let track = Track::jetbot_mat();
     println!("jetpilot bench --sim: one thread, {iterations} iterations, milliseconds");
@@ -75,20 +80,13 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
         let (r50, r90) = time_ms(iterations, |i| {
             renderer.render(&poses[i as usize % 64], &mut out)
         });
-        println!(
-            "  {:<52} {:>8.3} {:>8.3}",
-            format!("render {lens} {size}x{size}"),
-            r50,
-            r90
-        );
+        row(&format!("render {lens} {size}x{size}"), (r50, r90));
         let (s50, s90) = time_ms(iterations, |i| {
             synth.synthesize(&poses[i as usize % 64], &mut out);
         });
-        println!(
-            "  {:<52} {:>8.3} {:>8.3}",
-            format!("replayed-frame synthesis {lens} {size}x{size} ({n_rec} rec.)"),
-            s50,
-            s90
+        row(
+            &format!("replayed-frame synthesis {lens} {size}x{size} ({n_rec} rec.)"),
+            (s50, s90),
         );
         // Turned 20 degrees as well (DDPG's exploration near the heading bound): a fifth
         // of a fisheye's floor comes from earlier frames, or is the edge pixel smeared.
@@ -105,11 +103,9 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
             let (t50, t90) = time_ms(iterations, |i| {
                 s.synthesize(&turned[i as usize % 64], &mut out);
             });
-            println!(
-                "  {:<52} {:>8.3} {:>8.3}",
-                format!("  turned 20 deg, unseen floor from {name}"),
-                t50,
-                t90
+            row(
+                &format!("  turned 20 deg, unseen floor from {name}"),
+                (t50, t90),
             );
         }
     }
@@ -147,14 +143,12 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
     if let Some(e) = failed {
         return Err(e.into());
     }
-    println!(
-        "  {:<52} {:>8.3} {:>8.3}",
-        format!(
+    row(
+        &format!(
             "new scene: mat repainted at {} texels/m ({n} it.)",
             cfg.sim.mat_px_per_m
         ),
-        p50,
-        p90
+        (p50, p90),
     );
     Ok(ExitCode::SUCCESS)
 }
