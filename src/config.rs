@@ -739,7 +739,7 @@ mod tests {
     }
 
     #[test]
-    fn the_replay_fill_is_read_and_a_wrong_one_named() {
+    fn the_replay_fill_and_flat_field_are_read_and_a_wrong_fill_named() {
         use crate::sim::setup::ReplayFill;
         assert_eq!(
             Config::parse("", "t.toml").unwrap().sim.replay_fill,
@@ -751,6 +751,9 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("sim.replay_fill"), "{err}");
+        assert!(Config::parse("", "t.toml").unwrap().sim.replay_flat_field);
+        let cfg = Config::parse("[sim]\nreplay_flat_field = false\n", "t.toml").unwrap();
+        assert!(!cfg.sim.replay_flat_field);
     }
 
     #[test]

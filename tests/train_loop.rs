@@ -555,4 +555,48 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     ));
     assert_eq!(csv_rows(&out.join("ddpg_episodes.csv")).len(), 2);
     assert!(out.join("best.onnx").is_file());
+
+    // `eval --compare-render`: the same poses in the replay and in the world it was
+    // recorded in (the path road's poses are moved; the comparison moves them back). At a
+    // recorded pose the replayed view is the recorded frame (a JPEG of 32x32 pixels),
+    // rendered at that pose: the model's outputs there agree to about a hundredth (a
+    // 1-epoch model), far better than at the moved and turned poses (measured: 0.015
+    // against 0.059 in steering); a pose off by the path's shift (about 0.3 m) would not.
+    let cmp = dir.path().join("compare.json");
+    let stdout = ok(&jetpilot(
+        &["eval", "--config"],
+        &[
+            &path_cfg,
+            Path::new("--model"),
+            &il_out.join("best.onnx"),
+            Path::new("--compare-render"),
+            &cfg,
+            Path::new("--json"),
+            &cmp,
+        ],
+    ));
+    assert!(stdout.contains("corrections kept"), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cmp).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 11, "{v}");
+    assert!(v["poses"].as_u64().unwrap() >= 40, "{v}");
+    let at_pose = &rows[0];
+    assert!(at_pose["coverage"].as_f64().unwrap() > 0.99, "{v}");
+    let mean_diff = v["mean_steering_diff"].as_f64().unwrap();
+    assert!(
+        at_pose["steering_diff"].as_f64().unwrap() < 0.5 * mean_diff,
+        "{v}"
+    );
+    for key in ["steering_diff", "other_diff"] {
+        assert!(at_pose[key].as_f64().unwrap() < 0.03, "{key}: {v}");
+    }
+    // A replay config is needed, and a rendered world to compare with.
+    let out = jetpilot(
+        &["eval", "--config"],
+        &[&cfg, Path::new("--compare-render"), &cfg],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("is not a replay"), "{err}");
 }

@@ -10,7 +10,7 @@ use std::time::Instant;
 use jetpilot::config::Config;
 use jetpilot::drive::stats::summarise;
 use jetpilot::sim::Pose2;
-use jetpilot::sim::appearance::AppearanceConfig;
+use jetpilot::sim::appearance::{AppearanceConfig, Glare, Look};
 use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::render::{MatTexture, Renderer};
 use jetpilot::sim::scene::{SIM_FLOOR_RGB, SIM_MAT_RGB, Scene};
@@ -32,6 +32,18 @@ fn time_ms(iterations: u32, mut f: impl FnMut(u32)) -> (f32, f32) {
     let s = summarise(&mut samples);
     (s.p50, s.p90)
 }
+
+/// Vignetting, a light gradient and a glare patch: what a camera adds at fixed pixels.
+const CAMERA_EFFECTS: Look = Look {
+    vignette: 0.4,
+    gradient: [0.2, -0.2],
+    glare: Some(Glare {
+        centre: [0.65, 0.6],
+        radius: 0.1,
+        peak: 0.4,
+    }),
+    ..Look::PLAIN
+};
 
 /// One line of the table: the label, then the median and p90 in milliseconds.
 fn row(label: &str, (median, p90): (f32, f32)) {
@@ -108,6 +120,41 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
                 (t50, t90),
             );
         }
+        // The same lap through a camera with vignetting, a light gradient and glare: the
+        // flat field is fitted once (printed) and every view is restored through it.
+        let mut lit = synth.recording().clone();
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+        for f in &mut lit.frames {
+            let mut rgb = f.rgb.to_vec();
+            CAMERA_EFFECTS.apply(size, size, &mut rng, &mut rgb);
+            f.rgb = std::sync::Arc::new(rgb);
+        }
+        let started = Instant::now();
+        let (flat, fit) = Synthesizer::new(lit, track.road_half_width())?.with_flat_field(true);
+        let fit_ms = started.elapsed().as_secs_f32() * 1e3;
+        if flat.has_flat_field() {
+            let (t50, t90) = time_ms(iterations, |i| {
+                flat.synthesize(&turned[i as usize % 64], &mut out);
+            });
+            row(
+                "  turned 20 deg, camera effects kept (flat field)",
+                (t50, t90),
+            );
+        }
+        if let Some(field) = flat.flat_field() {
+            let (r50, r90) = time_ms(iterations, |_| field.restore(&mut out));
+            row("    of which restoring the camera's effects", (r50, r90));
+        }
+        println!(
+            "  {:<52} fitted in {fit_ms:.0} ms from {} pixel pairs{}",
+            "  flat field",
+            fit.map_or(0, |f| f.pairs),
+            if flat.has_flat_field() {
+                ""
+            } else {
+                ", not used"
+            }
+        );
     }
     // A new scene (appearance randomisation): the mat texture painted again, with its
     // mips, and the backdrop; once per episode and every 150 frames.

@@ -13,6 +13,7 @@ mod model_optimize;
 mod model_quantize;
 mod panel;
 mod poses;
+mod replay_check;
 mod run;
 mod samples;
 mod score;

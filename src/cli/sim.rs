@@ -167,6 +167,13 @@ pub struct EvalArgs {
     /// Also write the top-down trace with interventions as a PNG.
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
+    /// Instead of driving: how faithful the config's replay is, where the truth is known.
+    /// FILE is the world the recording was made in (rendered frames; the world flags below
+    /// apply to it). The car is put at 48 recorded poses, shifted 5 cm and turned up to 28
+    /// degrees, in both, and the model's outputs on the two views are compared; 1 for
+    /// "corrections kept" means the replay shows the model what the world would.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["expert", "seconds", "png"])]
+    compare_render: Option<PathBuf>,
     #[command(flatten)]
     road: WorldArgs,
 }
@@ -558,6 +565,15 @@ fn mark(rgb: &mut [u8], w: u32, h: u32, px: u32, py: u32) {
 }
 
 pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
+    if let Some(world) = &args.compare_render {
+        return super::replay_check::compare(
+            &args.config,
+            world,
+            &args.road,
+            args.model.as_deref(),
+            args.json.as_deref(),
+        );
+    }
     let mut cfg = Config::load(&args.config)?;
     args.road.apply(&mut cfg);
     let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);

@@ -22,6 +22,7 @@ pub mod closed_loop;
 pub mod demos;
 pub mod env;
 pub mod expert;
+pub mod flat_field;
 pub mod layout;
 pub mod lens;
 pub mod odometry;

@@ -85,6 +85,10 @@ pub struct SimConfig {
     pub replay_max_heading_deg: f32,
     /// Replay: where ground the nearest frame did not see comes from.
     pub replay_fill: ReplayFill,
+    /// Replay: fit what the recording's camera adds at fixed pixels (vignetting, a light
+    /// gradient, glare that moves with the robot) and keep it in place in replayed views
+    /// ([`crate::sim::flat_field`]); used only where it explains the recording.
+    pub replay_flat_field: bool,
     pub control_hz: f32,
     pub physics_hz: f32,
     pub seed: u64,
@@ -116,6 +120,7 @@ impl Default for SimConfig {
             record_spacing_m: 0.02,
             replay_max_heading_deg: 18.0,
             replay_fill: ReplayFill::Earlier,
+            replay_flat_field: true,
             control_hz: 30.0,
             physics_hz: 240.0,
             seed: 0,
@@ -152,6 +157,9 @@ pub struct SimRig {
     /// `motors.backend = "gpio"` nothing drives it: the H-bridge moves the robot.
     pub hat: VirtualPca9685,
     pub camera: CameraModel,
+    /// `sim.road = "path"`: how far the recording's poses were moved to put the path
+    /// 0.5 m inside the positive quadrant (world pose = recorded pose + this), metres.
+    pub path_shift_m: (f32, f32),
 }
 
 fn renderer(cfg: &SimConfig, track: &Track) -> Result<Renderer, SimError> {
@@ -176,7 +184,7 @@ pub fn load_track(cfg: &SimConfig) -> Result<Track, SimError> {
 }
 
 /// `sim.road = "path"`: the recording, and the road made from its path.
-pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
+pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording, (f32, f32)), SimError> {
     let needs = |what: &str| {
         SimError::Invalid(format!(
             "sim.road = \"path\" needs {what}: the road is the path of a recording with poses \
@@ -227,7 +235,7 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
         closing_gap_m = format!("{:.3}", road.closing_gap_m),
         "replay: the road is the recorded path"
     );
-    Ok((road.track, recording))
+    Ok((road.track, recording, (0.5 - min_x, 0.5 - min_y)))
 }
 
 /// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it
@@ -235,13 +243,11 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording), SimError> {
 pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
     let sim = &cfg.sim;
     if sim.road == RoadSource::Path {
-        let (track, recording) = path_road(sim)?;
-        let frames = FrameMaker::Replay(
-            Synthesizer::new(recording, track.road_half_width())?
-                .with_max_heading_deg(sim.replay_max_heading_deg)?
-                .with_fill_from_earlier(sim.replay_fill == ReplayFill::Earlier),
-        );
-        return rig(cfg, track, frames);
+        let (track, recording, shift) = path_road(sim)?;
+        let frames = FrameMaker::Replay(replay_synthesizer(sim, recording, &track)?);
+        let mut rig = rig(cfg, track, frames)?;
+        rig.path_shift_m = shift;
+        return Ok(rig);
     }
     let track = load_track(sim)?;
     let frames = match sim.frames {
@@ -256,14 +262,22 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
                 source = %sim.recording.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "one expert lap".into()),
                 "replay: frames to re-project"
             );
-            FrameMaker::Replay(
-                Synthesizer::new(recording, track.road_half_width())?
-                    .with_max_heading_deg(sim.replay_max_heading_deg)?
-                    .with_fill_from_earlier(sim.replay_fill == ReplayFill::Earlier),
-            )
+            FrameMaker::Replay(replay_synthesizer(sim, recording, &track)?)
         }
     };
     rig(cfg, track, frames)
+}
+
+/// The replay's synthesizer as `[sim]` sets it up: heading bound, fill, flat field.
+fn replay_synthesizer(
+    sim: &SimConfig,
+    recording: Recording,
+    track: &Track,
+) -> Result<Synthesizer, SimError> {
+    let synth = Synthesizer::new(recording, track.road_half_width())?
+        .with_max_heading_deg(sim.replay_max_heading_deg)?
+        .with_fill_from_earlier(sim.replay_fill == ReplayFill::Earlier);
+    Ok(synth.with_flat_field(sim.replay_flat_field).0)
 }
 
 fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimError> {
@@ -336,6 +350,7 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
         motors,
         hat,
         camera: cfg.sim.camera,
+        path_shift_m: (0.0, 0.0),
     })
 }
 

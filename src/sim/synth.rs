@@ -38,6 +38,7 @@ use std::sync::Arc;
 use nalgebra::Matrix3;
 
 use super::camera::CameraModel;
+use super::flat_field::{FlatField, PixelPair};
 use super::lens::Lens;
 use super::{Pose2, SimError, wrap_angle};
 
@@ -108,12 +109,36 @@ pub struct Synthesizer {
     earlier: Vec<[u32; EARLIER_M.len()]>,
     /// Fill ground that the frame did not see from [`Self::earlier`] frames.
     fill_from_earlier: bool,
+    /// The camera's image-fixed effects, fitted from the recording: the frames are kept
+    /// flattened and each view is restored through it ([`Synthesizer::with_flat_field`]).
+    flat: Option<FlatField>,
 }
 
 /// How far back along the recording (metres of path) the frames lie that fill ground the
 /// nearest frame did not see: a JetBot's fisheye sees the floor from about 8 cm ahead, so
 /// a view moved sideways or turned needs the floor that frames 5-30 cm back saw.
 const EARLIER_M: [f32; 3] = [0.06, 0.14, 0.28];
+
+/// What [`Synthesizer::with_flat_field`] fitted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlatFieldFit {
+    /// Pixel pairs that saw the same floor.
+    pub pairs: usize,
+    /// Their root mean square disagreement, levels: as recorded, and as light.
+    pub mismatch: (f32, f32),
+    /// [`FlatField::largest_correction`], levels.
+    pub largest_correction: f32,
+}
+
+impl FlatFieldFit {
+    /// The field takes away at least a level and a quarter of the pairs' disagreement: the
+    /// camera adds something at fixed pixels. Otherwise what is left is resampling and
+    /// pose error, which a field cannot explain, and it is not used.
+    pub fn explains_the_pairs(&self) -> bool {
+        let (before, after) = self.mismatch;
+        before - after >= 1.0f32.max(0.25 * before)
+    }
+}
 
 /// Fisheye frames at least this wide project every other pixel of a row and interpolate
 /// the rest ([`Synthesizer::remap`]).
@@ -265,7 +290,170 @@ impl Synthesizer {
             projection,
             earlier,
             fill_from_earlier: true,
+            flat: None,
         })
+    }
+
+    /// With `on`, fits the camera's image-fixed effects (vignetting, a light gradient,
+    /// glare that moves with the camera: [`FlatField`]) from pixel pairs that saw the same
+    /// floor in two frames, and keeps them in place: the recorded frames are flattened
+    /// once and every view is restored through the field at its own pixels. The field is
+    /// used only where it explains the pairs' disagreement
+    /// ([`FlatFieldFit::explains_the_pairs`]); a fit that fails leaves the synthesis as it
+    /// was, with a warning. Returns what was fitted (`None`: off, or the fit failed).
+    pub fn with_flat_field(mut self, on: bool) -> (Self, Option<FlatFieldFit>) {
+        self.unflatten();
+        if !on {
+            return (self, None);
+        }
+        let c = self.recording.camera;
+        let (w, h) = (c.width as usize, c.height as usize);
+        let pairs = self.floor_pairs();
+        let nodes = if w >= HALVE_FROM_WIDTH { 16 } else { 10 };
+        let field = match FlatField::fit(w, h, &pairs, nodes) {
+            Ok(f) => f,
+            Err(e) => {
+                tracing::warn!(pairs = pairs.len(), "replay: no flat field ({e})");
+                return (self, None);
+            }
+        };
+        let fit = FlatFieldFit {
+            pairs: pairs.len(),
+            mismatch: field.mismatch(),
+            largest_correction: field.largest_correction(),
+        };
+        tracing::info!(
+            pairs = fit.pairs,
+            mismatch_levels = format!("{:.1} -> {:.1}", fit.mismatch.0, fit.mismatch.1),
+            largest_correction = format!("{:.1}", fit.largest_correction),
+            used = fit.explains_the_pairs(),
+            "replay: the camera's image-fixed effects"
+        );
+        if fit.explains_the_pairs() {
+            for f in &mut self.recording.frames {
+                f.rgb = Arc::new(field.flatten(&f.rgb));
+            }
+            self.flat = Some(field);
+        }
+        (self, Some(fit))
+    }
+
+    /// Whether views are restored through a fitted [`FlatField`].
+    pub fn has_flat_field(&self) -> bool {
+        self.flat.is_some()
+    }
+
+    /// The fitted [`FlatField`] views are restored through, if one is used.
+    pub fn flat_field(&self) -> Option<&FlatField> {
+        self.flat.as_ref()
+    }
+
+    /// Undoes [`Self::with_flat_field`]'s flattening of the recorded frames (to within
+    /// rounding), so a second call fits on what the camera recorded.
+    fn unflatten(&mut self) {
+        if let Some(field) = self.flat.take() {
+            for f in &mut self.recording.frames {
+                let mut rgb = f.rgb.to_vec();
+                field.restore(&mut rgb);
+                f.rgb = Arc::new(rgb);
+            }
+        }
+    }
+
+    /// Pixel pairs that saw the same floor point, for [`FlatField::fit`]: up to 120
+    /// frames spread over the recording, each against the frames 6 and 14 cm before it
+    /// (whose views of the floor ahead lie higher up in the frame, and to the side in a
+    /// bend), on every fourth pixel (every second below 128 px). Left out: values within
+    /// 3 levels of black or white in either frame (clipped) and pixels on edges (a
+    /// summed central difference over 30 levels in either frame), where a pose error of a
+    /// pixel would change the value.
+    fn floor_pairs(&self) -> Vec<PixelPair> {
+        const EDGE_LEVELS: f32 = 30.0;
+        let frames = &self.recording.frames;
+        let c = self.recording.camera;
+        let (w, h) = (c.width as usize, c.height as usize);
+        let stride = if w >= HALVE_FROM_WIDTH { 4 } else { 2 };
+        let every = frames.len().div_ceil(120).max(1);
+        let luma = |rgb: &[u8], i: usize, j: usize| -> f32 {
+            let k = (j * w + i) * 3;
+            (rgb[k] as f32 + rgb[k + 1] as f32 + rgb[k + 2] as f32) / 3.0
+        };
+        // Summed central differences of luma at the pixel nearest (u, v), not at the border.
+        let edge = |rgb: &[u8], u: f32, v: f32| -> f32 {
+            let (i, j) = (u as usize, v as usize);
+            if i == 0 || j == 0 || i + 1 >= w || j + 1 >= h {
+                return f32::INFINITY;
+            }
+            (luma(rgb, i + 1, j) - luma(rgb, i - 1, j)).abs()
+                + (luma(rgb, i, j + 1) - luma(rgb, i, j - 1)).abs()
+        };
+        let bilinear = |rgb: &[u8], u: f32, v: f32| -> [f32; 3] {
+            let (tx, ty) = (u - 0.5, v - 0.5);
+            let (x0, y0) = (tx as usize, ty as usize);
+            let (fx, fy) = (tx - x0 as f32, ty - y0 as f32);
+            let at = |i: usize, j: usize, ch: usize| rgb[(j * w + i) * 3 + ch] as f32;
+            [0, 1, 2].map(|ch| {
+                let top = at(x0, y0, ch) * (1.0 - fx) + at(x0 + 1, y0, ch) * fx;
+                let bot = at(x0, y0 + 1, ch) * (1.0 - fx) + at(x0 + 1, y0 + 1, ch) * fx;
+                top * (1.0 - fy) + bot * fy
+            })
+        };
+        let clipped = |rgb: &[f32; 3]| rgb.iter().any(|&x| !(3.0..=252.0).contains(&x));
+        let mut pairs = Vec::new();
+        for (i, fa) in frames.iter().enumerate().step_by(every) {
+            let (s, co) = fa.pose.heading.sin_cos();
+            let to_world = Matrix3::new(co, -s, fa.pose.x, s, co, fa.pose.y, 0.0, 0.0, 1.0);
+            for &e in &self.earlier[i][..2] {
+                let Some(fb) = frames.get(e as usize) else {
+                    continue;
+                };
+                let m = self.to_recorded[e as usize] * to_world;
+                for j in (stride / 2..h).step_by(stride) {
+                    for k in (stride / 2..w).step_by(stride) {
+                        let Some([f, l]) = self.ground[j * w + k] else {
+                            continue;
+                        };
+                        let Some((u, v)) = self.project(&m, f, l) else {
+                            continue;
+                        };
+                        if !(u >= 1.5 && v >= 1.5 && u <= w as f32 - 1.5 && v <= h as f32 - 1.5) {
+                            continue;
+                        }
+                        let (ua, va) = (k as f32 + 0.5, j as f32 + 0.5);
+                        if edge(&fa.rgb, ua, va) > EDGE_LEVELS || edge(&fb.rgb, u, v) > EDGE_LEVELS
+                        {
+                            continue;
+                        }
+                        let a_rgb = bilinear(&fa.rgb, ua, va);
+                        let b_rgb = bilinear(&fb.rgb, u, v);
+                        if clipped(&a_rgb) || clipped(&b_rgb) {
+                            continue;
+                        }
+                        pairs.push(PixelPair {
+                            a: (ua, va),
+                            a_rgb,
+                            b: (u, v),
+                            b_rgb,
+                        });
+                    }
+                }
+            }
+        }
+        pairs
+    }
+
+    /// A ground point `(forward, left)` through `m` (robot ground -> recorded camera) to
+    /// the recorded pixel; `None` behind the camera.
+    fn project(&self, m: &Matrix3<f32>, f: f32, l: f32) -> Option<(f32, f32)> {
+        let pu = m[(0, 0)] * f + m[(0, 1)] * l + m[(0, 2)];
+        let pv = m[(1, 0)] * f + m[(1, 1)] * l + m[(1, 2)];
+        let pw = m[(2, 0)] * f + m[(2, 1)] * l + m[(2, 2)];
+        match self.projection {
+            Projection::Pinhole => pinhole_pixel(pu, pv, pw),
+            Projection::Fisheye { fx, fy, cu, cv, k } => {
+                fisheye_pixel(pu, pv, pw, (fx, fy), cu, cv, &k)
+            }
+        }
     }
 
     /// Whether ground the chosen frame did not see comes from earlier frames (true, the
@@ -393,6 +581,9 @@ impl Synthesizer {
                 |x, y, z| fisheye_pixel(x, y, z, (fx, fy), cu, cv, &k),
             ),
         };
+        if let Some(field) = &self.flat {
+            field.restore(out);
+        }
         let coverage = if self.ground_pixels == 0 {
             1.0
         } else {
@@ -844,6 +1035,99 @@ mod tests {
         synth.synthesize_from(0, &v0, &mut out);
         edge.synthesize_from(0, &v0, &mut out_edge);
         assert_eq!(out, out_edge);
+    }
+
+    #[test]
+    fn the_cameras_image_fixed_effects_stay_in_place() {
+        // A weaving drive up the straight (frames every 2 cm, 4 cm either side of the
+        // centre), recorded through a camera with vignetting, a light gradient and a
+        // glare patch: what it adds at fixed pixels must stay there in a turned view.
+        use crate::sim::appearance::{Glare, Look};
+        let cam = jetbot_fisheye(96);
+        let r = renderer(cam);
+        let look = Look {
+            vignette: 0.5,
+            gradient: [0.3, -0.2],
+            glare: Some(Glare {
+                centre: [0.7, 0.6],
+                radius: 0.1,
+                peak: 0.5,
+            }),
+            ..Look::PLAIN
+        };
+        let mut rng = rand::rng();
+        let shot = |pose: Pose2, rng: &mut rand::rngs::ThreadRng| {
+            let mut f = frame(&r, pose);
+            let mut rgb = f.rgb.to_vec();
+            look.apply(cam.width, cam.height, rng, &mut rgb);
+            f.rgb = Arc::new(rgb);
+            f
+        };
+        let frames: Vec<RecordedFrame> = (0..56)
+            .map(|k| {
+                let y = 0.2 + 0.02 * k as f32;
+                let x = 0.9 + 0.04 * (8.0 * y).sin();
+                let slope = 0.32 * (8.0 * y).cos();
+                shot(Pose2::new(x, y, FRAC_PI_2 - slope.atan()), &mut rng)
+            })
+            .collect();
+        let rec = Recording {
+            camera: cam,
+            frames,
+        };
+        let plain = Synthesizer::new(rec, 0.14).unwrap();
+        let (flat, fit) = plain.clone().with_flat_field(true);
+        let Some(FlatFieldFit { mismatch, .. }) = fit else {
+            panic!("no field fitted")
+        };
+        assert!(flat.flat.is_some(), "{fit:?}");
+        // The recorded values disagree by tens of levels; their light by a few.
+        assert!(
+            mismatch.0 > 20.0 && mismatch.1 < 0.15 * mismatch.0,
+            "{fit:?}"
+        );
+        let mut out = vec![0u8; plain.frame_len()];
+        let (mut p_plain, mut p_flat) = (0.0, 0.0);
+        let views = [(30, 0.03, -20.0), (40, -0.03, 15.0), (45, 0.0, 25.0)];
+        for (k, lateral, turn) in views {
+            let at = plain.recording().frames[k].pose;
+            let view = side_step(at, lateral, turn);
+            let truth = shot(view, &mut rng);
+            let mask = inside_mask(&cam, &at, &view);
+            plain.synthesize_from(k, &view, &mut out);
+            let a = psnr(&out, &truth.rgb, &mask);
+            flat.synthesize_from(k, &view, &mut out);
+            let b = psnr(&out, &truth.rgb, &mask);
+            println!(
+                "frame {k}, {lateral} m, {turn} deg: {a:.2} dB -> {b:.2} dB with the flat field"
+            );
+            p_plain += a / views.len() as f64;
+            p_flat += b / views.len() as f64;
+        }
+        assert!(p_flat > p_plain + 3.0, "{p_plain:.2} -> {p_flat:.2} dB");
+        // A camera that adds nothing fits no field, and a second call refits from the
+        // frames as recorded.
+        let clean = Recording {
+            camera: cam,
+            frames: (0..56)
+                .map(|k| frame(&r, Pose2::new(0.9, 0.2 + 0.02 * k as f32, FRAC_PI_2)))
+                .collect(),
+        };
+        let (none, fit) = Synthesizer::new(clean, 0.14).unwrap().with_flat_field(true);
+        assert!(none.flat.is_none(), "{fit:?}");
+        let (again, fit_again) = flat.with_flat_field(true);
+        let again_mismatch = fit_again.map(|f| f.mismatch).unwrap_or_default();
+        assert!((again_mismatch.0 - mismatch.0).abs() < 0.05 * mismatch.0 && again.flat.is_some());
+        let (off, _) = again.with_flat_field(false);
+        assert!(off.flat.is_none());
+        let back = &off.recording().frames[30].rgb;
+        let worst = back
+            .iter()
+            .zip(plain.recording().frames[30].rgb.iter())
+            .map(|(&a, &b)| (a as i32 - b as i32).abs())
+            .max()
+            .unwrap();
+        assert!(worst <= 2, "frames back within {worst} levels");
     }
 
     #[test]

@@ -217,6 +217,14 @@ impl World {
         }
     }
 
+    /// The replay's synthesizer (`None`: rendered frames).
+    pub fn synthesizer(&self) -> Option<&Synthesizer> {
+        match &self.frames {
+            FrameMaker::Replay(s) => Some(s),
+            FrameMaker::Render(_) => None,
+        }
+    }
+
     /// Randomises the camera's look from now on (`None`: plain frames).
     pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
         self.appearance = appearance;
