@@ -25,7 +25,8 @@
 #    tested on the rendered track, clockwise, in the drive's own world: the same seed and
 #    randomisation, so the same look as the recording (the room it was recorded in).
 #
-# Environment: MINUTES (DDPG wall budget per run, default 15), IL_EPOCHS (default 10:
+# Environment: SEED (sim.seed: the drive's look and the world's draws, default 0), MINUTES
+# (DDPG wall budget per run, default 15), IL_EPOCHS (default 10:
 # about 1000 frames, neighbours alike at 30 Hz), DRIVE_S (default 40: 1.2 laps), EVAL_S
 # (the rendered-track tests, default 600), BIN (a built jetpilot with --features train;
 # default: build target/release/jetpilot),
@@ -52,6 +53,7 @@ EVAL_S=${EVAL_S:-600}
 ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 0 --failure-resets 0 --actor-lr 1e-4 --noise ou --sigma-steering 0.1 --sigma-speed 0.05}
 POSES=${POSES:-true est}
 IL_SWERVE=${IL_SWERVE:-4}
+SEED=${SEED:-0}
 PATH_LANES=${PATH_LANES:-2}
 REPLAY_HEADING=${REPLAY_HEADING:-30}
 if [ -n "${BIN:-}" ]; then
@@ -68,7 +70,7 @@ log() { echo "== $(date +%H:%M:%S) $*"; }
 
 # The world: wheel-speed noise 10 % (as the odometry study). The drive, and the tests in its
 # world, keep one look (also after an intervention).
-sed 's/^speed_noise = .*/speed_noise = 0.1/' config/sim.toml > "$OUT/sim-noise.toml"
+sed "s/^speed_noise = .*/speed_noise = 0.1/; s/^seed = .*/seed = $SEED/" config/sim.toml > "$OUT/sim-noise.toml"
 sed 's/^redraw_every_frames = .*/redraw_every_frames = 0/; s/^redraw_at_reset = .*/redraw_at_reset = false/' \
   "$OUT/sim-noise.toml" > "$OUT/drive.toml"
 
