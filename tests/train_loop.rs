@@ -573,9 +573,18 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
             &cfg,
             Path::new("--json"),
             &cmp,
+            Path::new("--png"),
+            &dir.path().join("compare.png"),
         ],
     ));
     assert!(stdout.contains("corrections kept"), "{stdout}");
+    // Two poses, three offsets each: rendered above replayed, 160-pixel tiles.
+    let sheet = image::open(dir.path().join("compare.png")).unwrap();
+    let gap = (sheet.width() - 6 * 160) / 7;
+    assert_eq!(
+        (sheet.width(), sheet.height()),
+        (6 * 160 + 7 * gap, 2 * 160 + 3 * gap)
+    );
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&cmp).unwrap()).unwrap();
     let rows = v["rows"].as_array().unwrap();

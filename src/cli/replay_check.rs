@@ -14,6 +14,7 @@ use jetpilot::config::Config;
 use jetpilot::policy::Policy;
 use jetpilot::policy::contract::OutputKind;
 use jetpilot::policy::preprocess::Preprocessor;
+use jetpilot::score::contact::contact_sheet;
 use jetpilot::sim::Pose2;
 use jetpilot::sim::setup::{self, FrameMode};
 use jetpilot::sim::world::World;
@@ -35,6 +36,9 @@ const OFFSETS: [(f32, f32); 11] = [
     (0.05, 15.0),
     (-0.05, -15.0),
 ];
+
+/// The offset rows `--png` shows: the recorded pose, turned 28 degrees left, 5 cm left.
+const SHOWN_OFFSETS: [usize; 3] = [0, 5, 7];
 
 /// About this many recorded poses, spread evenly over the recording.
 const POSES: usize = 48;
@@ -76,6 +80,7 @@ pub fn compare(
     world: &WorldArgs,
     model: Option<&Path>,
     json: Option<&Path>,
+    png: Option<&Path>,
 ) -> anyhow::Result<ExitCode> {
     let replay_config = Config::load(replay_cfg)?;
     if replay_config.sim.frames != FrameMode::Replay {
@@ -127,8 +132,12 @@ pub fn compare(
     let frames = &synth.recording().frames;
     let every = frames.len().div_ceil(POSES).max(1);
     let picks: Vec<usize> = (0..frames.len()).step_by(every).collect();
+    // The picture: two poses, a quarter and three quarters along the recording, each at
+    // the recorded pose, turned 28 degrees left and moved 5 cm left.
+    let shown_poses = [picks[picks.len() / 4], picks[3 * picks.len() / 4]];
+    let mut shown: Vec<(usize, usize, Vec<u8>, Vec<u8>)> = Vec::new();
     let mut rows = Vec::with_capacity(OFFSETS.len());
-    for &(lateral, turn_deg) in &OFFSETS {
+    for (row, &(lateral, turn_deg)) in OFFSETS.iter().enumerate() {
         let (mut sum_r, mut sum_p, mut d_steer, mut d_other, mut cov) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &i in &picks {
             let at = frames[i].pose;
@@ -148,6 +157,9 @@ pub fn compare(
             rendered.observe(&mut frame_r);
             replay.observe(&mut frame_p);
             cov += synth.synthesize_from(i, &in_replay, &mut scratch).coverage as f64;
+            if png.is_some() && SHOWN_OFFSETS.contains(&row) && shown_poses.contains(&i) {
+                shown.push((i, row, frame_r.clone(), frame_p.clone()));
+            }
             let out_r = policy.infer(pre.run(w, h, &frame_r)?)?;
             let out_p = policy.infer(pre.run(w, h, &frame_p)?)?;
             let other = 1 - steer;
@@ -176,6 +188,22 @@ pub fn compare(
         rows,
     };
     print_comparison(&comparison, steer);
+    if let Some(p) = png {
+        // Ordered by pose, then offset: rendered views on top, replayed below.
+        shown.sort_by_key(|&(i, row, _, _)| (i, row));
+        let top: Vec<&[u8]> = shown.iter().map(|(_, _, r, _)| r.as_slice()).collect();
+        let bottom: Vec<image::RgbImage> = shown
+            .iter()
+            .filter_map(|(_, _, _, p)| image::RgbImage::from_raw(w, h, p.clone()))
+            .collect();
+        contact_sheet(&top, w, h, &bottom, w.max(160))
+            .save(p)
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        println!(
+            "wrote {}: rendered (top) and replayed (bottom) at two poses, each as recorded, turned 28 degrees left, moved 5 cm left",
+            p.display()
+        );
+    }
     if let Some(p) = json {
         let text = serde_json::to_string_pretty(&comparison)?;
         std::fs::write(p, text + "\n").with_context(|| format!("cannot write {}", p.display()))?;

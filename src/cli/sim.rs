@@ -164,7 +164,8 @@ pub struct EvalArgs {
     /// Also write the result as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
-    /// Also write the top-down trace with interventions as a PNG.
+    /// Also write the top-down trace with interventions as a PNG (with --compare-render:
+    /// rendered and replayed views, one above the other).
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
     /// Instead of driving: how faithful the config's replay is, where the truth is known.
@@ -172,7 +173,7 @@ pub struct EvalArgs {
     /// apply to it). The car is put at 48 recorded poses, shifted 5 cm and turned up to 28
     /// degrees, in both, and the model's outputs on the two views are compared; 1 for
     /// "corrections kept" means the replay shows the model what the world would.
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["expert", "seconds", "png"])]
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["expert", "seconds"])]
     compare_render: Option<PathBuf>,
     #[command(flatten)]
     road: WorldArgs,
@@ -572,6 +573,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
             &args.road,
             args.model.as_deref(),
             args.json.as_deref(),
+            args.png.as_deref(),
         );
     }
     let mut cfg = Config::load(&args.config)?;
