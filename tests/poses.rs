@@ -306,3 +306,73 @@ fn missing_images_and_a_torn_catalog_line_are_named() {
         "{csv}"
     );
 }
+
+/// The `visual + wheels` line's position drift (% of the distance) and heading drift
+/// (deg/m).
+fn drift_line(stdout: &str) -> (f32, f32) {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("visual + wheels"))
+        .unwrap_or_else(|| panic!("no drift line in {stdout}"));
+    let number_before = |unit: &str| -> f32 {
+        let end = line
+            .find(unit)
+            .unwrap_or_else(|| panic!("{unit} in {line}"));
+        let start = line[..end].rfind('(').unwrap() + 1;
+        line[start..end].trim().parse().unwrap()
+    };
+    (number_before("% of"), number_before("deg/m"))
+}
+
+#[test]
+fn the_cameras_fixed_effects_are_taken_out_before_registration() {
+    // A drive through a camera with vignetting, a light gradient and a glare spot, which
+    // stay in place while the floor moves: registration reads them as standing still.
+    // Measured on this 4 s drive (deterministic): 1.61 % and 0.49 deg/m without
+    // --flat-field, 0.66 % and 0.17 deg/m with it (8 s: 1.30 % and 2.64 deg/m against
+    // 0.29 % and 0.34 deg/m).
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("glare.toml");
+    std::fs::write(
+        &cfg,
+        "[sim.appearance]\nenabled = true\nglare_probability = 1.0\nvignette = [0.5, 0.5]\n\
+         light_gradient = [0.3, 0.3]\nredraw_every_frames = 0\nredraw_at_reset = false\n",
+    )
+    .unwrap();
+    let (cfg, tub) = (
+        cfg.display().to_string(),
+        dir.path().join("drive").display().to_string(),
+    );
+    let o = jetpilot(&[
+        "-q",
+        "sim",
+        "--config",
+        &cfg,
+        "--expert",
+        "--seconds",
+        "8",
+        "--record",
+        &tub,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let png = dir.path().join("check.png").display().to_string();
+    let check = |extra: &[&str]| -> String {
+        let mut args = vec!["-q", "poses", "--tub", &tub, "--config", &cfg, "--check"];
+        args.extend_from_slice(&["--png", &png]);
+        args.extend_from_slice(extra);
+        let o = jetpilot(&args);
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(
+            o.status.success(),
+            "{stdout}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        stdout
+    };
+    let plain = check(&[]);
+    let flat = check(&["--flat-field"]);
+    assert!(flat.contains("estimated again without them"), "{flat}");
+    let (p0, h0) = drift_line(&plain);
+    let (p1, h1) = drift_line(&flat);
+    assert!(p1 < 0.6 * p0 && h1 < 0.6 * h0, "{plain}\n{flat}");
+}

@@ -51,6 +51,12 @@ pub struct PosesArgs {
     /// that much more (a low-contrast floor, glare). 0: off.
     #[arg(long, value_name = "K", default_value_t = 4.0)]
     scatter_ref: f64,
+    /// Take out what the camera adds at fixed pixels (vignetting, a light gradient, glare
+    /// that moves with the robot), which registration reads as standing still: fit it on
+    /// a first estimate's poses and, where it explains the frames, estimate again on
+    /// frames without it (about twice the time).
+    #[arg(long)]
+    flat_field: bool,
 }
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
@@ -59,6 +65,18 @@ fn print_calibration(est: &odometry::Estimate) {
         println!(
             "wheel model:     speed x{:.3} ({} frames), turn x{:.3} ({} frames), calibrated from the frames",
             sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
+        );
+    }
+    if let Some(f) = est.flat_field {
+        println!(
+            "camera effects:  pairs of pixels on the same floor disagree by {:.1} levels RMS, {:.1} through the fitted field{}",
+            f.mismatch.0,
+            f.mismatch.1,
+            if f.explains_the_pairs() {
+                ": estimated again without them"
+            } else {
+                ": not used"
+            }
         );
     }
     if let Some(k) = est.scatter {
@@ -78,6 +96,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("reading the tub {}", args.tub.display()))?;
     let params = OdometryParams {
         scatter_ref: args.scatter_ref,
+        flat_field: args.flat_field,
         ..OdometryParams::default()
     };
     if args.check {
@@ -158,6 +177,7 @@ fn check_against_truth(
     let mut wheels_only = params;
     wheels_only.fusion.min_texture = f32::INFINITY;
     wheels_only.calibrate = false;
+    wheels_only.flat_field = false;
     let base = odometry::estimate(
         tub,
         &sim.camera,

@@ -313,7 +313,10 @@ impl Synthesizer {
         let field = match FlatField::fit(w, h, &pairs, nodes) {
             Ok(f) => f,
             Err(e) => {
-                tracing::warn!(pairs = pairs.len(), "replay: no flat field ({e})");
+                tracing::warn!(
+                    pairs = pairs.len(),
+                    "no flat field for the camera's effects ({e})"
+                );
                 return (self, None);
             }
         };
@@ -327,7 +330,7 @@ impl Synthesizer {
             mismatch_levels = format!("{:.1} -> {:.1}", fit.mismatch.0, fit.mismatch.1),
             largest_correction = format!("{:.1}", fit.largest_correction),
             used = fit.explains_the_pairs(),
-            "replay: the camera's image-fixed effects"
+            "the camera's image-fixed effects (flat field)"
         );
         if fit.explains_the_pairs() {
             for f in &mut self.recording.frames {

@@ -22,8 +22,12 @@ pub mod output;
 pub mod register;
 pub mod wheels;
 
+use std::sync::Arc;
+
 use super::camera::CameraModel;
+use super::flat_field::FlatField;
 use super::robot::RobotParams;
+use super::synth::{FlatFieldFit, RecordedFrame, Recording, Synthesizer};
 use super::{Pose2, SimError, wrap_angle};
 use crate::dataset::tub::{TubReader, TubRecord};
 use birdseye::{View, ViewGrid, Warp};
@@ -51,6 +55,11 @@ pub struct OdometryParams {
     /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; README's
     /// odometry study), below the 4.6-14 of looks where it pulled the estimate off.
     pub scatter_ref: f64,
+    /// Take out what the camera adds at fixed pixels (vignetting, a light gradient, glare
+    /// that travels with the robot), which registration would read as no motion: fit a
+    /// [`FlatField`] on the first estimate's poses and, where it explains the frames,
+    /// estimate again on the flattened frames.
+    pub flat_field: bool,
 }
 
 impl Default for OdometryParams {
@@ -61,6 +70,7 @@ impl Default for OdometryParams {
             fusion: FusionParams::default(),
             calibrate: true,
             scatter_ref: 4.0,
+            flat_field: false,
         }
     }
 }
@@ -215,6 +225,9 @@ pub struct Estimate {
     /// The prior's weight the fused pass used (`params.fusion.prior_weight`, raised by
     /// `scatter_ref`).
     pub prior_weight: f32,
+    /// With [`OdometryParams::flat_field`]: what was fitted on the first estimate (the
+    /// poses are the second estimate's when the field was used).
+    pub flat_field: Option<FlatFieldFit>,
     /// Records whose image could not be read (each named), and the tub's own warnings.
     pub warnings: Vec<String>,
 }
@@ -246,7 +259,7 @@ pub fn estimate(
     start: Pose2,
     opts: ReadOptions,
 ) -> Result<Estimate, SimError> {
-    let mut warnings: Vec<String> = tub.warnings().to_vec();
+    let warnings: Vec<String> = tub.warnings().to_vec();
     let records: Vec<&TubRecord> = tub
         .records()
         .filter(|r| !tub.deleted_indexes().contains(&r.index))
@@ -257,9 +270,47 @@ pub fn estimate(
             reason: "the tub has no records".into(),
         });
     };
+    let mut est = estimate_once(tub, &records, camera, robot, params, start, &opts, None)?;
+    est.warnings.splice(0..0, warnings);
+    if !params.flat_field {
+        return Ok(est);
+    }
+    let (field, fit) = fit_flat_field(tub, &records, camera, &est.poses)?;
+    est.flat_field = fit;
+    let Some(field) = field else {
+        return Ok(est);
+    };
+    let mut again = estimate_once(
+        tub,
+        &records,
+        camera,
+        robot,
+        params,
+        start,
+        &opts,
+        Some(&field),
+    )?;
+    again.warnings = est.warnings;
+    again.flat_field = fit;
+    Ok(again)
+}
+
+/// Calibration (if asked for) and the fused pass, on frames flattened by `flat` if given.
+#[allow(clippy::too_many_arguments)]
+fn estimate_once(
+    tub: &TubReader,
+    records: &[&TubRecord],
+    camera: &CameraModel,
+    robot: RobotParams,
+    params: OdometryParams,
+    start: Pose2,
+    opts: &ReadOptions,
+    flat: Option<&FlatField>,
+) -> Result<Estimate, SimError> {
+    let mut warnings = Vec::new();
     let (scales, scatter) = if params.calibrate {
         let mut odo = Odometer::new(camera, robot, params, start).calibrating();
-        pass(tub, &records, camera, &opts, &mut odo, &mut Vec::new())?;
+        pass(tub, records, camera, opts, flat, &mut odo, &mut Vec::new())?;
         let scatter = calibrate::scatter(odo.samples());
         let overconfidence = calibrate::overconfidence(scatter, params.scatter_ref);
         let scales = calibrate::fit(odo.samples(), overconfidence);
@@ -274,14 +325,52 @@ pub fn estimate(
     if let Some(sc) = &scales {
         odo = odo.with_scales(sc);
     }
-    let poses = pass(tub, &records, camera, &opts, &mut odo, &mut warnings)?;
+    let poses = pass(tub, records, camera, opts, flat, &mut odo, &mut warnings)?;
     Ok(Estimate {
         poses,
         scales,
         scatter,
         prior_weight: params.fusion.prior_weight,
         warnings,
+        flat_field: None,
     })
+}
+
+/// The camera's image-fixed effects, fitted on `poses` (the first estimate) from the
+/// frames they were estimated from; the field is `None` where it does not explain them.
+fn fit_flat_field(
+    tub: &TubReader,
+    records: &[&TubRecord],
+    camera: &CameraModel,
+    poses: &[FramePose],
+) -> Result<(Option<FlatField>, Option<FlatFieldFit>), SimError> {
+    let by_index: std::collections::HashMap<u64, &TubRecord> =
+        records.iter().map(|r| (r.index, *r)).collect();
+    let mut frames = Vec::with_capacity(poses.len());
+    for p in poses {
+        let Some(rec) = by_index.get(&p.index) else {
+            continue;
+        };
+        if let Ok((w, h, rgb)) = tub.load_rgb(rec)
+            && (w, h) == (camera.width, camera.height)
+        {
+            frames.push(RecordedFrame {
+                pose: p.pose,
+                width: w,
+                height: h,
+                rgb: Arc::new(rgb),
+            });
+        }
+    }
+    if frames.is_empty() {
+        return Ok((None, None));
+    }
+    let recording = Recording {
+        camera: *camera,
+        frames,
+    };
+    let (synth, fit) = Synthesizer::new(recording, 0.1)?.with_flat_field(true);
+    Ok((synth.flat_field().cloned(), fit))
 }
 
 /// One pass of `odo` over `records`.
@@ -290,6 +379,7 @@ fn pass(
     records: &[&TubRecord],
     camera: &CameraModel,
     opts: &ReadOptions,
+    flat: Option<&FlatField>,
     odo: &mut Odometer,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<FramePose>, SimError> {
@@ -320,7 +410,10 @@ fn pass(
                     });
                 }
                 degrade(&mut rgb, w, h, opts, &mut rng);
-                Some((rgb, w, h))
+                match flat {
+                    Some(field) => Some((field.flatten(&rgb), w, h)),
+                    None => Some((rgb, w, h)),
+                }
             }
             Err(e) => {
                 warnings.push(format!(
