@@ -24,9 +24,11 @@
 //! moved sideways or turned) are looked up in the frames recorded 6, 14 and 28 cm further
 //! back, which drove towards that floor; where none saw it (or with
 //! [`Synthesizer::with_fill_from_earlier`] off) they are clamped to the frame's nearest
-//! edge pixel and count against [`SynthInfo::coverage`]. Only the ground is re-projected:
-//! what the camera adds to every frame in the same place (glare, vignetting) moves with
-//! it. Synthesis is faithful only near the recording, so [`SynthInfo::valid`] turns false
+//! edge pixel and count against [`SynthInfo::coverage`]. What the camera adds to every
+//! frame in the same place (glare, vignetting) would move with the floor; with
+//! [`Synthesizer::with_flat_field`] it is fitted from the recording, the frames are kept
+//! flattened and each view is put back through it, so it stays in place
+//! ([`super::flat_field`]). Synthesis is faithful only near the recording, so [`SynthInfo::valid`] turns false
 //! beyond half a road width or 18 degrees of heading error (VISTA's episode-end rule;
 //! [`Synthesizer::with_max_heading_deg`] sets a wider heading bound for a wide lens).
 //!
