@@ -104,10 +104,16 @@ pub fn compare(
     let mut rendered = setup::build(&world_config)
         .with_context(|| format!("cannot build the world of {}", world_cfg.display()))?
         .world;
-    let synth = replay
+    // The recorded poses (the world's copy of the recording is borrowed again for each
+    // pose's coverage, between moves).
+    let recorded: Vec<Pose2> = replay
         .synthesizer()
         .context("the replay world has no synthesizer")?
-        .clone();
+        .recording()
+        .frames
+        .iter()
+        .map(|f| f.pose)
+        .collect();
     if replay.camera().width != rendered.camera().width
         || replay.camera().height != rendered.camera().height
     {
@@ -129,9 +135,8 @@ pub fn compare(
     let mut frame_r = vec![0u8; (w * h * 3) as usize];
     let mut frame_p = vec![0u8; (w * h * 3) as usize];
     let mut scratch = vec![0u8; (w * h * 3) as usize];
-    let frames = &synth.recording().frames;
-    let every = frames.len().div_ceil(POSES).max(1);
-    let picks: Vec<usize> = (0..frames.len()).step_by(every).collect();
+    let every = recorded.len().div_ceil(POSES).max(1);
+    let picks: Vec<usize> = (0..recorded.len()).step_by(every).collect();
     // The picture: two poses, a quarter and three quarters along the recording, each at
     // the recorded pose, turned 28 degrees left and moved 5 cm left.
     let shown_poses = [picks[picks.len() / 4], picks[3 * picks.len() / 4]];
@@ -140,7 +145,7 @@ pub fn compare(
     for (row, &(lateral, turn_deg)) in OFFSETS.iter().enumerate() {
         let (mut sum_r, mut sum_p, mut d_steer, mut d_other, mut cov) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &i in &picks {
-            let at = frames[i].pose;
+            let at = recorded[i];
             let (s, c) = at.heading.sin_cos();
             let in_replay = Pose2::new(
                 at.x - s * lateral,
@@ -156,7 +161,9 @@ pub fn compare(
             place_keeping_look(&mut replay, in_replay);
             rendered.observe(&mut frame_r);
             replay.observe(&mut frame_p);
-            cov += synth.synthesize_from(i, &in_replay, &mut scratch).coverage as f64;
+            if let Some(synth) = replay.synthesizer() {
+                cov += synth.synthesize_from(i, &in_replay, &mut scratch).coverage as f64;
+            }
             if png.is_some() && SHOWN_OFFSETS.contains(&row) && shown_poses.contains(&i) {
                 shown.push((i, row, frame_r.clone(), frame_p.clone()));
             }

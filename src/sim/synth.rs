@@ -308,6 +308,23 @@ impl Synthesizer {
         if !on {
             return (self, None);
         }
+        let Some((field, fit)) = self.fit_flat_field() else {
+            return (self, None);
+        };
+        if fit.explains_the_pairs() {
+            for f in &mut self.recording.frames {
+                f.rgb = Arc::new(field.flatten(&f.rgb));
+            }
+            self.flat = Some(field);
+        }
+        (self, Some(fit))
+    }
+
+    /// Fits a [`FlatField`] to the frames as this synthesizer holds them (as recorded
+    /// unless a field is in use) without using it, and logs the fit; `None` (with a
+    /// warning) where the fit fails. [`Self::with_flat_field`] uses it, and so does the
+    /// odometry, which needs the field and not the views.
+    pub(crate) fn fit_flat_field(&self) -> Option<(FlatField, FlatFieldFit)> {
         let c = self.recording.camera;
         let (w, h) = (c.width as usize, c.height as usize);
         let pairs = self.floor_pairs();
@@ -319,7 +336,7 @@ impl Synthesizer {
                     pairs = pairs.len(),
                     "no flat field for the camera's effects ({e})"
                 );
-                return (self, None);
+                return None;
             }
         };
         let fit = FlatFieldFit {
@@ -334,13 +351,7 @@ impl Synthesizer {
             used = fit.explains_the_pairs(),
             "the camera's image-fixed effects (flat field)"
         );
-        if fit.explains_the_pairs() {
-            for f in &mut self.recording.frames {
-                f.rgb = Arc::new(field.flatten(&f.rgb));
-            }
-            self.flat = Some(field);
-        }
-        (self, Some(fit))
+        Some((field, fit))
     }
 
     /// Whether views are restored through a fitted [`FlatField`].

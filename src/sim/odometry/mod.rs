@@ -369,8 +369,11 @@ fn fit_flat_field(
         camera: *camera,
         frames,
     };
-    let (synth, fit) = Synthesizer::new(recording, 0.1)?.with_flat_field(true);
-    Ok((synth.flat_field().cloned(), fit))
+    // The field alone: fitted, not applied to the frames held here.
+    Ok(match Synthesizer::new(recording, 0.1)?.fit_flat_field() {
+        Some((field, fit)) => (fit.explains_the_pairs().then_some(field), Some(fit)),
+        None => (None, None),
+    })
 }
 
 /// One pass of `odo` over `records`.
