@@ -122,6 +122,10 @@ pub struct IlArgs {
     /// No flip and no colour jitter.
     #[arg(long)]
     no_augment: bool,
+    /// xy heads: shift each picture by up to this fraction of its side, the target with it
+    /// (0: off, JetBot's notebook; 0.25: up to a quarter of the frame).
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    shift: f32,
     /// Continue after the last finished epoch in --out (last.onnx and Adam's state
     /// il_optim.bpk).
     #[arg(long)]
@@ -214,6 +218,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     if args.no_augment {
         opts.augment = Augment::NONE;
     }
+    opts.augment.shift = args.shift;
     let report = il::train(&dataset, &opts, |e| {
         tracing::info!(
             epoch = e.epoch,

@@ -1,6 +1,6 @@
 //! JetBot's augmentation and the input tensor: owns turning cached RGB8 frames into the
 //! normalised NCHW batch a training step takes, with a random horizontal flip (the label's
-//! mirrored component negated) and colour jitter.
+//! mirrored component negated), colour jitter and, for JetBot's xy head, a random shift.
 //!
 //! Jitter follows torchvision's `ColorJitter(b, c, s, h)` that JetBot's notebook uses, with
 //! its factors drawn per image, applied in a fixed order on values in 0..1:
@@ -12,6 +12,17 @@
 //! hue:        rotate the chroma by 2 pi * fh      fh ~ U(-h, h)   (YIQ rotation)
 //! clamp to 0..1, then (v - mean[c]) / std[c] in the contract's channel order
 //! ```
+//!
+//! The shift moves the picture by whole pixels (the uncovered edge repeats the border
+//! pixels) and the xy label with it, so the target stays on the same spot of the road:
+//!
+//! ```text
+//! out(x, y) = in(clamp(x - dx), clamp(y - dy))      label += (2 dx / size, 2 dy / size)
+//! dx ~ U(-shift, shift) * size, narrowed so the label stays on the frame
+//! ```
+//!
+//! It teaches the network that the target moves with the road, and spreads the labels over
+//! the frame as people's clicks are spread; it has no meaning for a (speed, steering) head.
 //!
 //! With no augmentation the tensor equals the daemon's [`Preprocessor`] output on the
 //! same frame (to float rounding).
@@ -32,6 +43,8 @@ pub struct Augment {
     pub contrast: f32,
     pub saturation: f32,
     pub hue: f32,
+    /// Largest shift of the picture (and an xy label with it), as a fraction of its side.
+    pub shift: f32,
 }
 
 impl Augment {
@@ -41,6 +54,7 @@ impl Augment {
         contrast: 0.0,
         saturation: 0.0,
         hue: 0.0,
+        shift: 0.0,
     };
     pub const JETBOT: Augment = Augment {
         flip: true,
@@ -48,6 +62,7 @@ impl Augment {
         contrast: 0.3,
         saturation: 0.3,
         hue: 0.3,
+        shift: 0.0,
     };
 }
 
@@ -60,6 +75,8 @@ pub struct Draw {
     pub saturation: f32,
     /// Fraction of a full turn.
     pub hue: f32,
+    /// The picture's shift in pixels (x right, y down).
+    pub shift: [i32; 2],
 }
 
 impl Draw {
@@ -69,6 +86,7 @@ impl Draw {
         contrast: 1.0,
         saturation: 1.0,
         hue: 0.0,
+        shift: [0, 0],
     };
 
     pub fn sample(a: &Augment, rng: &mut impl Rng) -> Self {
@@ -89,8 +107,24 @@ impl Draw {
             } else {
                 0.0
             },
+            shift: [0, 0],
         }
     }
+}
+
+/// A shift in whole pixels from a draw `u` in -1..1: `u * shift * size`, narrowed so that
+/// `label + 2 d / size` stays on the frame's pixels, -1 ..= 1 - 2 / size (pixel 0 is -1,
+/// pixel size - 1 is 1 - 2 / size). No shift where that leaves nothing to draw from.
+pub fn shift_pixels(u: f32, shift: f32, label: f32, size: u32) -> i32 {
+    let s = size as f32;
+    let most = (shift * s).floor();
+    let lo = (-most).max(((-1.0 - label) * s / 2.0).ceil());
+    let hi = most.min(((1.0 - label) * s / 2.0 - 1.0).floor());
+    if lo > hi {
+        return 0;
+    }
+    let mid = (lo + hi) / 2.0;
+    (mid + u * (hi - lo) / 2.0).round().clamp(lo, hi) as i32
 }
 
 fn gray(r: f32, g: f32, b: f32) -> f32 {
@@ -116,10 +150,14 @@ pub fn write_input(pixels: &[u8], size: u32, contract: &ModelContract, d: &Draw,
         ChannelOrder::Rgb => [0, 1, 2],
         ChannelOrder::Bgr => [2, 1, 0],
     };
+    let last = s as i32 - 1;
+    let [dx, dy] = d.shift;
     for y in 0..s {
+        let src_y = (y as i32 - dy).clamp(0, last) as usize;
         for x in 0..s {
-            let src_x = if d.flip { s - 1 - x } else { x };
-            let p = &pixels[(y * s + src_x) * 3..][..3];
+            let shifted_x = (x as i32 - dx).clamp(0, last) as usize;
+            let src_x = if d.flip { s - 1 - shifted_x } else { shifted_x };
+            let p = &pixels[(src_y * s + src_x) * 3..][..3];
             let mut rgb = [
                 f32::from(p[0]) / 255.0,
                 f32::from(p[1]) / 255.0,
@@ -167,6 +205,8 @@ pub struct Batch {
 
 /// Builds the batch of `samples[idx]`, drawing augmentation from `rng` in index order (so
 /// the same seed gives the same batch). `mirrored`: the label component a flip negates.
+/// A shift (`augment.shift > 0`) moves the label as JetBot's xy target: the caller keeps
+/// it to xy heads.
 pub fn make_batch(
     samples: &[Sample],
     idx: &[usize],
@@ -184,7 +224,18 @@ pub fn make_batch(
     };
     for (k, &i) in idx.iter().enumerate() {
         let sample = &samples[i];
-        let d = Draw::sample(augment, rng);
+        let mut d = Draw::sample(augment, rng);
+        let mut label = sample.label;
+        if d.flip {
+            label[mirrored] = -label[mirrored];
+        }
+        if augment.shift > 0.0 {
+            for (c, v) in label.iter_mut().enumerate() {
+                let u: f32 = rng.random_range(-1.0..=1.0);
+                d.shift[c] = shift_pixels(u, augment.shift, *v, size);
+                *v += 2.0 * d.shift[c] as f32 / size as f32;
+            }
+        }
         write_input(
             &sample.pixels,
             size,
@@ -192,10 +243,6 @@ pub fn make_batch(
             &d,
             &mut batch.inputs[k * per..(k + 1) * per],
         );
-        let mut label = sample.label;
-        if d.flip {
-            label[mirrored] = -label[mirrored];
-        }
         batch.labels.extend_from_slice(&label);
     }
     batch
@@ -265,6 +312,66 @@ mod tests {
     }
 
     #[test]
+    fn shift_pixels_worked_values() {
+        // 96 px, at most a quarter (24 px); a centred label may go either way in full.
+        assert_eq!(shift_pixels(1.0, 0.25, 0.0, 96), 24);
+        assert_eq!(shift_pixels(-1.0, 0.25, 0.0, 96), -24);
+        assert_eq!(shift_pixels(0.0, 0.25, 0.0, 96), 0);
+        // A label at 0.8 (pixel 86.4) may move right to pixel 95 (1 - 2 / 96): 9.6 - 1 ->
+        // 8 px, so the range is -24..=8.
+        assert_eq!(shift_pixels(1.0, 0.25, 0.8, 96), 8);
+        assert_eq!(shift_pixels(-1.0, 0.25, 0.8, 96), -24);
+        assert_eq!(shift_pixels(0.0, 0.25, 0.8, 96), -8);
+        // A label just outside is brought in; one too far out for the largest shift stays.
+        assert_eq!(shift_pixels(1.0, 0.25, 1.25, 96), -13); // -24..=floor(-12 - 1)
+        assert_eq!(shift_pixels(1.0, 0.25, 3.0, 96), 0);
+        assert_eq!(shift_pixels(1.0, 0.0, 0.0, 96), 0);
+    }
+
+    #[test]
+    fn shift_moves_the_label_with_the_picture() {
+        // An 8x8 black frame with one white pixel at (5, 2), the xy label on it:
+        // ((5 - 4) / 4, (2 - 4) / 4) = (0.25, -0.5).
+        let size = 8usize;
+        let mut pixels = vec![0u8; size * size * 3];
+        pixels[(2 * size + 5) * 3..][..3].copy_from_slice(&[255, 255, 255]);
+        let samples = vec![Sample {
+            pixels,
+            label: [0.25, -0.5],
+        }];
+        let c = ModelContract {
+            mean: [0.0; 3],
+            std: [1.0; 3],
+            ..contract(ChannelOrder::Rgb)
+        };
+        let shift = Augment {
+            shift: 0.4,
+            ..Augment::NONE
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut moved = 0;
+        for _ in 0..40 {
+            let b = make_batch(&samples, &[0], size as u32, &c, &shift, 0, &mut rng);
+            let [lx, ly] = [b.labels[0], b.labels[1]];
+            assert!(
+                (-1.0..=0.75).contains(&lx) && (-1.0..=0.75).contains(&ly),
+                "{lx} {ly}"
+            );
+            // The label's pixel is white in the R plane, and nothing else is.
+            let px = (lx * 4.0 + 4.0).round() as usize;
+            let py = (ly * 4.0 + 4.0).round() as usize;
+            assert!(
+                (lx * 4.0 + 4.0 - px as f32).abs() < 1e-5,
+                "whole pixels: {lx}"
+            );
+            let white: Vec<usize> = (0..size * size).filter(|&i| b.inputs[i] > 0.5).collect();
+            assert_eq!(white, vec![py * size + px], "label ({lx}, {ly})");
+            moved += usize::from(px != 5 || py != 2);
+        }
+        assert!(moved > 30, "the shift was drawn: {moved} of 40 moved");
+    }
+
+    #[test]
     fn jitter_worked_values() {
         // Brightness 0.5 on a mid-grey (128) pixel: 0.2510; contrast and saturation leave a
         // uniform grey image as it is; a hue turn leaves grey as grey.
@@ -280,6 +387,7 @@ mod tests {
             contrast: 1.7,
             saturation: 0.2,
             hue: 0.25,
+            shift: [0, 0],
         };
         let mut out = vec![0.0; 12];
         write_input(&grey, 2, &c, &d, &mut out);

@@ -35,8 +35,8 @@ use super::curve::{CsvLog, Series, plot_png, read_csv};
 use super::data::{Dataset, LabelMap, split};
 use super::export::write_actor;
 use super::{Resnet18, TrainDevice, TrainError, load_onnx};
-use crate::policy::ModelContract;
 use crate::policy::onnx::Resnet18Weights;
+use crate::policy::{ModelContract, OutputKind};
 
 /// Settings of one imitation-learning run.
 #[derive(Debug, Clone)]
@@ -392,11 +392,34 @@ pub fn raw_throughput(
 }
 
 /// Runs imitation learning on `data`; `on_epoch` sees every finished epoch.
+/// A shift moves JetBot's xy target with the picture; a (speed, steering) label does not
+/// move with it, so the shift is refused there.
+fn check_shift(opts: &IlOptions) -> Result<(), TrainError> {
+    let shift = opts.augment.shift;
+    if !(0.0..=0.5).contains(&shift) {
+        return Err(TrainError::Data {
+            path: opts.out.display().to_string(),
+            reason: format!("--shift must be in 0..0.5 (a fraction of the frame), got {shift}"),
+        });
+    }
+    if shift > 0.0 && opts.contract.output != OutputKind::Xy {
+        return Err(TrainError::Data {
+            path: opts.out.display().to_string(),
+            reason: format!(
+                "--shift moves JetBot's xy target with the picture; a {} head's labels do not move with it",
+                opts.contract.output.as_str()
+            ),
+        });
+    }
+    Ok(())
+}
+
 pub fn train(
     data: &Dataset,
     opts: &IlOptions,
     mut on_epoch: impl FnMut(&EpochStats),
 ) -> Result<IlReport, TrainError> {
+    check_shift(opts)?;
     let device = opts.device.open()?.autodiff();
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
     let (mut model, mut state) = initial_model(opts, &device)?;
@@ -574,8 +597,33 @@ mod tests {
     }
 
     #[test]
+    fn a_shift_is_refused_where_the_label_does_not_move_with_the_picture() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = |output: OutputKind, shift: f32| {
+            let mut o = IlOptions::paper(
+                dir.path().join("out"),
+                ModelContract {
+                    output,
+                    ..ModelContract::default()
+                },
+                LabelMap::new(output, &Default::default()),
+            );
+            o.augment.shift = shift;
+            o
+        };
+        let err = check_shift(&opts(OutputKind::SpeedSteering, 0.2)).unwrap_err();
+        assert!(err.to_string().contains("speed_steering head"), "{err}");
+        let err = check_shift(&opts(OutputKind::Xy, 0.7)).unwrap_err();
+        assert!(
+            err.to_string().contains("--shift must be in 0..0.5"),
+            "{err}"
+        );
+        check_shift(&opts(OutputKind::Xy, 0.25)).unwrap();
+        check_shift(&opts(OutputKind::SpeedSteering, 0.0)).unwrap();
+    }
+
+    #[test]
     fn a_resumed_run_computes_what_an_unbroken_one_does() {
-        use crate::policy::OutputKind;
         let size = 32u32;
         let data = Dataset::random(size, 12, 1);
         let contract = ModelContract {
