@@ -1,7 +1,8 @@
 //! `jetpilot score` on a small generated JetBot xy folder with a known answer: a ResNet-18
 //! whose fc weights are zero answers its fc bias, (0.25, -0.5) = pixel (140, 56), for
 //! every frame, so each frame's error is the distance from its label to that pixel.
-//! Bad files (zero bytes, truncated) are skipped by name and the run goes on.
+//! Bad files (zero bytes, truncated) are skipped by name and the run goes on. The four
+//! frames are one picture labelled four times, so the labels' own disagreement is known.
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
@@ -101,6 +102,16 @@ fn score_gives_the_known_pixel_errors_and_skips_bad_files_by_name() {
     // Baseline: the mean label, pixel (162.5, 80): 32.90, 25.14, 27.61, 49.30 -> mean 33.7.
     assert!(stdout.contains("baseline  mean 33.7 px"), "{stdout}");
     assert!(stdout.contains("over 4 frames"), "{stdout}");
+    // All four frames show one view (the same grey picture): each label's distance to the
+    // mean (162.5, 80) times sqrt(4 / 3) (the others' mean, corrected for their noise):
+    // 37.99, 29.03, 31.88, 56.92 -> mean 39.0, median 34.9; 38.96 / 33.74 = 1.15.
+    assert!(
+        stdout.contains(
+            "labels    4 of 4 frames share their view with a neighbour (1 view(s) labelled more than once); \
+             a label lies mean 39.0 px, median 34.9 px from its view's mean label (1.15 of the baseline)"
+        ),
+        "{stdout}"
+    );
     for bad in ["xy_100_100_empty.jpg", "xy_100_100_truncated.jpg"] {
         assert!(
             stderr.contains(bad) && stderr.contains("skipped"),

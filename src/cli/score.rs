@@ -2,6 +2,7 @@
 //! daemon's own preprocessing and ONNX Runtime session, against the mean-label baseline;
 //! writes a per-frame CSV and a picture of the frames with label and prediction.
 
+use std::cmp::Ordering;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -13,7 +14,7 @@ use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
 use jetpilot::policy::contract::ChannelOrder;
 use jetpilot::policy::ort_policy::{ContractSource, OrtOptions};
 use jetpilot::policy::{ModelContract, OrtPolicy, OutputKind, Policy, Preprocessor};
-use jetpilot::score::{self, Scorecard, sheet};
+use jetpilot::score::{self, Scorecard, agreement, sheet};
 
 #[derive(Debug, clap::Args)]
 pub struct ScoreArgs {
@@ -109,6 +110,10 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         );
         frames.extend(listing.frames);
         warnings.extend(listing.warnings);
+    }
+    let mut in_time_order: Vec<LabelledFrame> = frames.clone();
+    if in_time_order.iter().all(|f| f.time_s.is_some()) {
+        in_time_order.sort_by(|a, b| a.time_s.partial_cmp(&b.time_s).unwrap_or(Ordering::Equal));
     }
     let (reference, scored_frames) = match args.split_by_time {
         Some(f) => {
@@ -214,6 +219,8 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         );
     }
 
+    print_agreement(contract.output, &in_time_order, card.baseline.headline());
+
     let out = args.out.clone().unwrap_or_else(|| default_out(&args.model));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let csv = out.join("frames.csv");
@@ -252,6 +259,38 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         println!("skipped {skipped} unreadable image(s), named in the warnings above");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// How far the labels of all the frames (scored or not) disagree on near-duplicates: the
+/// error a model cannot be expected to beat. Unreadable frames are left out (the scored
+/// ones are already named in the warnings).
+fn print_agreement(output: OutputKind, frames: &[LabelledFrame], baseline: f64) {
+    let (mut thumbs, mut labels) = (Vec::new(), Vec::new());
+    for f in frames {
+        if let Ok((w, h, rgb)) = jetpilot::dataset::load_rgb(&f.path) {
+            thumbs.push(agreement::thumbnail(w, h, &rgb));
+            labels.push(f.label.value(w, h));
+        }
+    }
+    let a = agreement::agreement(output, &thumbs, &labels);
+    let Some(d) = a.disagreement else {
+        println!(
+            "  labels    no two neighbouring frames of the {} show the same view: their agreement cannot be checked",
+            a.frames
+        );
+        return;
+    };
+    let unit = match output {
+        OutputKind::Xy => format!("mean {:.1} px, median {:.1} px", d.mean, d.median),
+        OutputKind::SpeedSteering => format!("mean {:.4}, median {:.4}", d.mean, d.median),
+    };
+    println!(
+        "  labels    {} of {} frames share their view with a neighbour ({} view(s) labelled more than once); a label lies {unit} from its view's mean label ({:.2} of the baseline): about the least error a model can reach here",
+        a.duplicated,
+        a.frames,
+        a.groups,
+        d.mean / baseline.max(1e-12)
+    );
 }
 
 /// The labels of the baseline's frames; xy pixel labels need each image's size, read from

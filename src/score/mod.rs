@@ -12,7 +12,10 @@
 //!
 //! The mean-label baseline predicts one constant, the mean label of the frames it is given
 //! (the training part of a split by time, so the baseline never sees the test labels).
+//! [`agreement`] measures how far a folder's labels disagree on near-duplicate frames: the
+//! error no model can be expected to beat there.
 
+pub mod agreement;
 pub mod contact;
 pub mod sheet;
 
