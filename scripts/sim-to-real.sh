@@ -30,7 +30,7 @@
 # VARIANTS="matched scattered" runs some of them only (default: all but the tilted two); TRACK
 # (default config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched
 # and scattered's road and target.
-# IL_ARGS (e.g. "--shift 0.25") goes to every `train il`.
+# IL_ARGS (e.g. "--shift 0.25") goes to every `train il`; SEED (default 1) is its --seed.
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
 # time; the mean-label baseline from the earlier 80 %). Writes OUT/<name>/score/.
 set -euo pipefail
@@ -82,7 +82,7 @@ run() {
   "$B" -q sim --config "$cfg" "${source[@]}" "$@" --record-xy "$d/xy" --png "$d/look" \
     --real "$REAL" > "$d/sim.log"
   # shellcheck disable=SC2086 # IL_ARGS is a list of words
-  "$B" train il --config "$CFG" --input-size 96 --head xy --epochs "$EPOCHS" --seed 1 \
+  "$B" train il --config "$CFG" --input-size 96 --head xy --epochs "$EPOCHS" --seed "${SEED:-1}" \
     ${IL_ARGS:-} --data "$d/xy" --out "$d/il" > "$d/il.log" 2>&1
   "$B" score --model "$d/il/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$d/score" \
     | tee "$d/score.txt"
