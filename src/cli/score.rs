@@ -60,6 +60,8 @@ struct Scored {
     label: [f32; 2],
     prediction: [f32; 2],
     error: f64,
+    /// Its grey thumbnail, for the labels' agreement.
+    thumb: Vec<u8>,
 }
 
 pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
@@ -111,10 +113,6 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         frames.extend(listing.frames);
         warnings.extend(listing.warnings);
     }
-    let mut in_time_order: Vec<LabelledFrame> = frames.clone();
-    if in_time_order.iter().all(|f| f.time_s.is_some()) {
-        in_time_order.sort_by(|a, b| a.time_s.partial_cmp(&b.time_s).unwrap_or(Ordering::Equal));
-    }
     let (reference, scored_frames) = match args.split_by_time {
         Some(f) => {
             let (train, test) = labelled::split_by_time(frames, f)?;
@@ -156,11 +154,13 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("inference on {}", frame.path.display()))?;
         let label = frame.label.value(w, h);
         let error = score::frame_error(contract.output, label, prediction);
+        let thumb = agreement::thumbnail(w, h, &rgb);
         scored.push(Scored {
             frame,
             label,
             prediction,
             error,
+            thumb,
         });
     }
     for w in &warnings {
@@ -219,7 +219,12 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         );
     }
 
-    print_agreement(contract.output, &in_time_order, card.baseline.headline());
+    print_agreement(
+        contract.output,
+        reference.as_deref().unwrap_or_default(),
+        &scored,
+        card.baseline.headline(),
+    );
 
     let out = args.out.clone().unwrap_or_else(|| default_out(&args.model));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -262,16 +267,36 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// How far the labels of all the frames (scored or not) disagree on near-duplicates: the
-/// error a model cannot be expected to beat. Unreadable frames are left out (the scored
-/// ones are already named in the warnings).
-fn print_agreement(output: OutputKind, frames: &[LabelledFrame], baseline: f64) {
-    let (mut thumbs, mut labels) = (Vec::new(), Vec::new());
-    for f in frames {
-        if let Ok((w, h, rgb)) = jetpilot::dataset::load_rgb(&f.path) {
-            thumbs.push(agreement::thumbnail(w, h, &rgb));
-            labels.push(f.label.value(w, h));
-        }
+/// error a model cannot be expected to beat. The scored frames' thumbnails were made while
+/// scoring; only the baseline's frames are decoded here, and unreadable ones are left out.
+/// Frames are compared in capture order where every frame has a time.
+fn print_agreement(
+    output: OutputKind,
+    reference: &[LabelledFrame],
+    scored: &[Scored],
+    baseline: f64,
+) {
+    let mut views: Vec<(Option<f64>, Vec<u8>, [f32; 2])> = reference
+        .iter()
+        .filter_map(|f| {
+            let (w, h, rgb) = jetpilot::dataset::load_rgb(&f.path).ok()?;
+            Some((
+                f.time_s,
+                agreement::thumbnail(w, h, &rgb),
+                f.label.value(w, h),
+            ))
+        })
+        .collect();
+    views.extend(
+        scored
+            .iter()
+            .map(|s| (s.frame.time_s, s.thumb.clone(), s.label)),
+    );
+    if views.iter().all(|v| v.0.is_some()) {
+        views.sort_by(|a, b| a.0.partial_cmp(&b.0).unwrap_or(Ordering::Equal));
     }
+    let (thumbs, labels): (Vec<Vec<u8>>, Vec<[f32; 2]>) =
+        views.into_iter().map(|(_, t, l)| (t, l)).unzip();
     let a = agreement::agreement(output, &thumbs, &labels);
     let Some(d) = a.disagreement else {
         println!(

@@ -109,11 +109,11 @@ pub fn agreement(output: OutputKind, thumbs: &[Vec<u8>], labels: &[[f32; 2]]) ->
     for g in &groups {
         for &i in g.iter() {
             let others: Vec<[f32; 2]> = g.iter().filter(|&&k| k != i).map(|&k| labels[k]).collect();
-            let n = g.len() as f64;
+            let views = g.len() as f64;
             let error = frame_error(output, labels[i], mean_label(&others));
             errors.push(match output {
-                OutputKind::Xy => error * ((n - 1.0) / n).sqrt(),
-                OutputKind::SpeedSteering => error * (n - 1.0) / n,
+                OutputKind::Xy => error * ((views - 1.0) / views).sqrt(),
+                OutputKind::SpeedSteering => error * (views - 1.0) / views,
             });
         }
     }

@@ -391,7 +391,6 @@ pub fn raw_throughput(
     Ok((steps * batch) as f64 / t0.elapsed().as_secs_f64().max(1e-9))
 }
 
-/// Runs imitation learning on `data`; `on_epoch` sees every finished epoch.
 /// A shift moves JetBot's xy target with the picture; a (speed, steering) label does not
 /// move with it, so the shift is refused there.
 fn check_shift(opts: &IlOptions) -> Result<(), TrainError> {
@@ -414,6 +413,7 @@ fn check_shift(opts: &IlOptions) -> Result<(), TrainError> {
     Ok(())
 }
 
+/// Runs imitation learning on `data`; `on_epoch` sees every finished epoch.
 pub fn train(
     data: &Dataset,
     opts: &IlOptions,
