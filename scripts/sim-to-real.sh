@@ -29,7 +29,9 @@
 #               camera tilted as in tilted.
 # VARIANTS="matched scattered" runs some of them only (default: all but the tilted two); TRACK
 # (default config/tracks/narrow_print.toml) and LOOKAHEAD (default 0.135) change matched
-# and scattered's road and target.
+# and scattered's road and target (and matched_layouts' target). LAYOUT_LANES (default
+# [0.09, 0.12]) and LAYOUT_CORNERS (default [0.25, 0.50], the mat's sharpest upwards) are
+# matched_layouts' and tilted's lane widths and corner radii, metres.
 # IL_ARGS (e.g. "--shift 0.25") goes to every `train il`; SEED (default 1) is its --seed.
 # Each is scored with `jetpilot score --split-by-time 0.2` (the latest 20 % by capture
 # time; the mean-label baseline from the earlier 80 %). Writes OUT/<name>/score/.
@@ -45,6 +47,8 @@ SECONDS_DRIVEN=$(( (FRAMES * 2 + 14) / 15 ))
 TRACK=${TRACK:-config/tracks/narrow_print.toml}
 LOOKAHEAD=${LOOKAHEAD:-0.135}
 TILT=${TILT:-[15.0, 40.0]}
+LAYOUT_LANES=${LAYOUT_LANES:-[0.09, 0.12]}
+LAYOUT_CORNERS=${LAYOUT_CORNERS:-[0.25, 0.50]}
 if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   echo "usage: scripts/sim-to-real.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
   echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat); '${REAL}' is not one" >&2
@@ -92,7 +96,8 @@ sed "s/^lookahead_m = .*/lookahead_m = $LOOKAHEAD/" "$CFG" > "$OUT/matched.toml"
 # Only inside [sim.layouts] ([sim.path] has a lane_width_m of its own).
 LAYOUTS='/^\[sim\.layouts\]/,/^\[/'
 sed "${LAYOUTS} s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
-sed "${LAYOUTS} { s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = [0.09, 0.12]/ }" \
+sed "${LAYOUTS} { s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = $LAYOUT_LANES/;
+  s/^corner_radius_m = .*/corner_radius_m = $LAYOUT_CORNERS/ }" \
   "$OUT/matched.toml" > "$OUT/matched_layouts.toml"
 sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched_layouts.toml" \
   > "$OUT/tilted.toml"

@@ -111,6 +111,9 @@ pub struct Synthesizer {
     earlier: Vec<[u32; EARLIER_M.len()]>,
     /// Fill ground that the frame did not see from [`Self::earlier`] frames.
     fill_from_earlier: bool,
+    /// Project one pixel in four and interpolate the rest ([`Synthesizer::remap`]): the
+    /// fisheye at [`INTERPOLATE_FROM_WIDTH`] and wider.
+    interpolate_map: bool,
     /// The camera's image-fixed effects, fitted from the recording: the frames are kept
     /// flattened and each view is restored through it ([`Synthesizer::with_flat_field`]).
     flat: Option<FlatField>,
@@ -142,9 +145,15 @@ impl FlatFieldFit {
     }
 }
 
-/// Fisheye frames at least this wide project every other pixel of a row and interpolate
-/// the rest ([`Synthesizer::remap`]).
-const HALVE_FROM_WIDTH: usize = 128;
+/// Fisheye frames at least this wide project one pixel in four (every other pixel of every
+/// other row) and interpolate the rest ([`Synthesizer::remap`]): at 96 and 224 px within
+/// 2 levels of projecting every pixel (tested).
+const INTERPOLATE_FROM_WIDTH: usize = 64;
+/// Frames at least this wide fit the flat field on a finer grid from sparser pixel pairs.
+const FINE_FIELD_FROM_WIDTH: usize = 128;
+/// The widest frame whose projected rows fit the remap's stack buffers (1280 px); wider
+/// frames project every other pixel of every row.
+const QUARTER_MAX_EVENS: usize = 640;
 
 /// The recorded camera's lens, in float32 for the per-pixel loop.
 #[derive(Debug, Clone, Copy)]
@@ -292,6 +301,8 @@ impl Synthesizer {
             projection,
             earlier,
             fill_from_earlier: true,
+            interpolate_map: matches!(projection, Projection::Fisheye { .. })
+                && camera.width as usize >= INTERPOLATE_FROM_WIDTH,
             flat: None,
         })
     }
@@ -328,7 +339,7 @@ impl Synthesizer {
         let c = self.recording.camera;
         let (w, h) = (c.width as usize, c.height as usize);
         let pairs = self.floor_pairs();
-        let nodes = if w >= HALVE_FROM_WIDTH { 16 } else { 10 };
+        let nodes = if w >= FINE_FIELD_FROM_WIDTH { 16 } else { 10 };
         let field = match FlatField::fit(w, h, &pairs, nodes) {
             Ok(f) => f,
             Err(e) => {
@@ -388,7 +399,7 @@ impl Synthesizer {
         let frames = &self.recording.frames;
         let c = self.recording.camera;
         let (w, h) = (c.width as usize, c.height as usize);
-        let stride = if w >= HALVE_FROM_WIDTH { 4 } else { 2 };
+        let stride = if w >= FINE_FIELD_FROM_WIDTH { 4 } else { 2 };
         let every = frames.len().div_ceil(120).max(1);
         let luma = |rgb: &[u8], i: usize, j: usize| -> f32 {
             let k = (j * w + i) * 3;
@@ -477,6 +488,14 @@ impl Synthesizer {
     /// single-frame synthesis, `sim.replay_fill = "edge"`).
     pub fn with_fill_from_earlier(mut self, on: bool) -> Self {
         self.fill_from_earlier = on;
+        self
+    }
+
+    /// With `false`, every ground pixel is projected through the lens, where by default a
+    /// fisheye of [`INTERPOLATE_FROM_WIDTH`] px and wider projects one in four and interpolates
+    /// the rest: the exact reference the interpolation is checked and timed against.
+    pub fn with_interpolated_map(mut self, on: bool) -> Self {
+        self.interpolate_map = on && matches!(self.projection, Projection::Fisheye { .. });
         self
     }
 
@@ -593,7 +612,7 @@ impl Synthesizer {
                 h,
                 &fill,
                 out,
-                w >= HALVE_FROM_WIDTH,
+                self.interpolate_map,
                 |x, y, z| fisheye_pixel(x, y, z, (fx, fy), cu, cv, &k),
             ),
         };
@@ -622,11 +641,12 @@ impl Synthesizer {
     /// pixels), and clamped to `src`'s nearest edge pixel where none saw it. Returns how
     /// many ground pixels came from inside a recorded frame.
     ///
-    /// With `halve`, only every other pixel of a row is projected: a pixel between two
-    /// projected ground pixels takes the mean of their recorded coordinates (the map is
-    /// smooth along a row; its error is a quarter of the second difference, hundredths of
-    /// a pixel below the horizon). The fisheye takes it at 128 px and wider, where the
-    /// projection is most of the cost.
+    /// With `halve`, only every other pixel of every other row is projected: a pixel
+    /// between two projected ground pixels (along its row, or between the rows above and
+    /// below) takes the mean of their recorded coordinates (the map is smooth; its error is
+    /// a quarter of the second difference, hundredths of a pixel below the horizon), and
+    /// one whose neighbours are not both seen ground is projected itself. The fisheye
+    /// takes it (at 64 px and wider), where the projection is most of the cost.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn remap<P: Fn(f32, f32, f32) -> Option<(f32, f32)>>(
@@ -717,30 +737,75 @@ impl Synthesizer {
             }
             return inside;
         }
-        for (j, row) in out.chunks_exact_mut(w * 3).enumerate() {
-            let base = j * w;
-            let mut here = locate(base);
-            let mut i = 0;
-            while i < w {
-                put(base + i, here, &mut row[i * 3..i * 3 + 3]);
-                if i + 1 >= w {
-                    break;
-                }
-                let next = if i + 2 < w {
-                    locate(base + i + 2)
-                } else {
-                    None
-                };
-                let mid = match (here, next) {
-                    (Some((u0, v0, true)), Some((u1, v1, true))) => {
-                        Some((0.5 * (u0 + u1), 0.5 * (v0 + v1), true))
-                    }
-                    _ => locate(base + i + 1),
-                };
-                put(base + i + 1, mid, &mut row[(i + 1) * 3..(i + 2) * 3]);
-                here = next;
-                i += 2;
+        // Projected pixels of a row's even columns go in `above` (row j) and `below` (row
+        // j + 2); row j + 1's even columns are their mean, and every odd column the mean of
+        // its two even neighbours, where both are seen ground; anything else is projected.
+        let mean = |a: Option<(f32, f32, bool)>, b: Option<(f32, f32, bool)>| match (a, b) {
+            (Some((u0, v0, true)), Some((u1, v1, true))) => {
+                Some((0.5 * (u0 + u1), 0.5 * (v0 + v1), true))
             }
+            _ => None,
+        };
+        let evens = w.div_ceil(2);
+        if evens > QUARTER_MAX_EVENS {
+            // Wider than the stack rows below: every other pixel of a row only.
+            for (j, row) in out.chunks_exact_mut(w * 3).enumerate() {
+                let base = j * w;
+                for i in (0..w).step_by(2) {
+                    let here = locate(base + i);
+                    put(base + i, here, &mut row[i * 3..i * 3 + 3]);
+                    if i + 1 < w {
+                        let next = if i + 2 < w {
+                            locate(base + i + 2)
+                        } else {
+                            None
+                        };
+                        let mid = mean(here, next).or_else(|| locate(base + i + 1));
+                        put(base + i + 1, mid, &mut row[(i + 1) * 3..(i + 2) * 3]);
+                    }
+                }
+            }
+            return inside;
+        }
+        let mut above = [None; QUARTER_MAX_EVENS];
+        let mut below = [None; QUARTER_MAX_EVENS];
+        let mut between = [None; QUARTER_MAX_EVENS];
+        let project_row = |j: usize, into: &mut [Option<(f32, f32, bool)>]| {
+            for (c, slot) in into.iter_mut().enumerate().take(evens) {
+                *slot = locate(j * w + 2 * c);
+            }
+        };
+        let mut emit_row = |j: usize, even: &[Option<(f32, f32, bool)>], out: &mut [u8]| {
+            let base = j * w;
+            let row = &mut out[base * 3..(base + w) * 3];
+            for c in 0..evens {
+                let i = 2 * c;
+                put(base + i, even[c], &mut row[i * 3..i * 3 + 3]);
+                if i + 1 < w {
+                    let next = if c + 1 < evens { even[c + 1] } else { None };
+                    let mid = mean(even[c], next).or_else(|| locate(base + i + 1));
+                    put(base + i + 1, mid, &mut row[(i + 1) * 3..(i + 2) * 3]);
+                }
+            }
+        };
+        project_row(0, &mut above);
+        let mut j = 0;
+        while j < h {
+            emit_row(j, &above, out);
+            if j + 1 >= h {
+                break;
+            }
+            if j + 2 < h {
+                project_row(j + 2, &mut below);
+                for c in 0..evens {
+                    between[c] = mean(above[c], below[c]).or_else(|| locate((j + 1) * w + 2 * c));
+                }
+            } else {
+                project_row(j + 1, &mut between);
+            }
+            emit_row(j + 1, &between, out);
+            std::mem::swap(&mut above, &mut below);
+            j += 2;
         }
         inside
     }
@@ -1192,6 +1257,48 @@ mod tests {
         assert!(p96 >= PSNR_BOUND_96, "96x96 PSNR {p96}");
         assert!(pcurve >= PSNR_BOUND_224, "curve PSNR {pcurve}");
         assert!(cov224 > 0.5 && cov96 > 0.5 && covcurve > 0.5);
+    }
+
+    #[test]
+    fn the_interpolated_map_matches_projecting_every_pixel() {
+        // One pixel in four projected (fisheye), against all of them: views moved 3 cm
+        // aside and turned 5-25 degrees, with earlier frames filling unseen floor.
+        for size in [224, 96] {
+            let camera = jetbot_fisheye(size);
+            let r = renderer(camera);
+            let frames: Vec<_> = (0..8)
+                .map(|i| frame(&r, Pose2::new(0.9, 0.3 + 0.04 * i as f32, FRAC_PI_2)))
+                .collect();
+            let fast = Synthesizer::new(Recording { camera, frames }, 0.14).unwrap();
+            assert!(fast.interpolate_map);
+            let exact = fast.clone().with_interpolated_map(false);
+            let (mut a, mut b) = (vec![0u8; r.frame_len()], vec![0u8; r.frame_len()]);
+            for turn in [5.0, -15.0, 25.0] {
+                let pose = side_step(Pose2::new(0.9, 0.58, FRAC_PI_2), 0.03, turn);
+                let fa = fast.synthesize_from(7, &pose, &mut a);
+                let fb = exact.synthesize_from(7, &pose, &mut b);
+                let diffs: Vec<u8> = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y)).collect();
+                let over_2 = diffs.iter().filter(|&&d| d > 2).count() as f64 / diffs.len() as f64;
+                let largest = diffs.iter().copied().max().unwrap_or(0);
+                let p = psnr(&a, &b, &vec![true; a.len() / 3]);
+                println!(
+                    "{size} px, turned {turn} deg: {p:.1} dB, {:.3} % of values more than 2 \
+                 levels apart, largest {largest}; coverage {:.4} / {:.4}",
+                    100.0 * over_2,
+                    fa.coverage,
+                    fb.coverage
+                );
+                assert!(
+                    p >= 45.0,
+                    "turned {turn}: interpolated map {p} dB from exact"
+                );
+                assert!(
+                    over_2 < 0.002,
+                    "turned {turn}: {over_2} of values over 2 levels"
+                );
+                assert!((fa.coverage - fb.coverage).abs() < 0.002);
+            }
+        }
     }
 
     #[test]
