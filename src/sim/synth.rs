@@ -152,7 +152,7 @@ const INTERPOLATE_FROM_WIDTH: usize = 64;
 /// Frames at least this wide fit the flat field on a finer grid from sparser pixel pairs.
 const FINE_FIELD_FROM_WIDTH: usize = 128;
 /// The widest frame whose projected rows fit the remap's stack buffers (1280 px); wider
-/// frames project every other pixel of every row.
+/// frames project every pixel.
 const QUARTER_MAX_EVENS: usize = 640;
 
 /// The recorded camera's lens, in float32 for the per-pixel loop.
@@ -641,7 +641,7 @@ impl Synthesizer {
     /// pixels), and clamped to `src`'s nearest edge pixel where none saw it. Returns how
     /// many ground pixels came from inside a recorded frame.
     ///
-    /// With `halve`, only every other pixel of every other row is projected: a pixel
+    /// With `interpolate`, only every other pixel of every other row is projected: a pixel
     /// between two projected ground pixels (along its row, or between the rows above and
     /// below) takes the mean of their recorded coordinates (the map is smooth; its error is
     /// a quarter of the second difference, hundredths of a pixel below the horizon), and
@@ -657,7 +657,7 @@ impl Synthesizer {
         h: usize,
         fill: &[Option<(Matrix3<f32>, &[u8])>],
         out: &mut [u8],
-        halve: bool,
+        interpolate: bool,
         project: P,
     ) -> usize {
         let (wf, hf) = (w as f32, h as f32);
@@ -731,7 +731,7 @@ impl Synthesizer {
             }
         };
 
-        if !halve {
+        if !interpolate || w.div_ceil(2) > QUARTER_MAX_EVENS {
             for (k, px) in out.chunks_exact_mut(3).enumerate() {
                 put(k, locate(k), px);
             }
@@ -747,26 +747,6 @@ impl Synthesizer {
             _ => None,
         };
         let evens = w.div_ceil(2);
-        if evens > QUARTER_MAX_EVENS {
-            // Wider than the stack rows below: every other pixel of a row only.
-            for (j, row) in out.chunks_exact_mut(w * 3).enumerate() {
-                let base = j * w;
-                for i in (0..w).step_by(2) {
-                    let here = locate(base + i);
-                    put(base + i, here, &mut row[i * 3..i * 3 + 3]);
-                    if i + 1 < w {
-                        let next = if i + 2 < w {
-                            locate(base + i + 2)
-                        } else {
-                            None
-                        };
-                        let mid = mean(here, next).or_else(|| locate(base + i + 1));
-                        put(base + i + 1, mid, &mut row[(i + 1) * 3..(i + 2) * 3]);
-                    }
-                }
-            }
-            return inside;
-        }
         let mut above = [None; QUARTER_MAX_EVENS];
         let mut below = [None; QUARTER_MAX_EVENS];
         let mut between = [None; QUARTER_MAX_EVENS];
