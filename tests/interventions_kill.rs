@@ -131,7 +131,6 @@ fn sigkill_never_corrupts_the_log() {
     const ROUNDS: usize = 30;
     let mut prev_count = 0;
     let mut prev_torn = 0;
-    let mut last_session_empty = false;
     for round in 0..ROUNDS {
         let len = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
         let delay = Duration::from_millis(rng.random_range(5..=50));
@@ -153,10 +152,6 @@ fn sigkill_never_corrupts_the_log() {
         check_warnings(&s);
         prev_count = s.interventions;
         prev_torn = s.torn_lines.len();
-        last_session_empty = s
-            .sessions
-            .last()
-            .is_some_and(|x| x.interventions.is_empty());
     }
     eprintln!(
         "{ROUNDS} kills: {prev_count} interventions read back, {prev_torn} torn lines seen, {:.1} s",
@@ -167,6 +162,11 @@ fn sigkill_never_corrupts_the_log() {
     // That line is the last session's own line when its child was killed before its first
     // intervention (its header's sync took longer than the delay): that session is then lost
     // with it, as it should be.
+    let last_session_empty = read(&path)
+        .expect("read the log")
+        .sessions
+        .last()
+        .is_some_and(|x| x.interventions.is_empty());
     let bytes = std::fs::read(&path).expect("read the log");
     let cut = bytes.len() - 20;
     std::fs::write(&path, &bytes[..cut]).expect("tear the last line");
