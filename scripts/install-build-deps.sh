@@ -18,7 +18,7 @@ dpkg -s libvulkan1 >/dev/null 2>&1 || need+=(libvulkan1)
 for p in e2fsprogs gdisk fakeroot unzip zip xz-utils time; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
 done
-# The web page's browser test (tests/web_browser.rs) drives Debian's Chromium headless
+# The web page's browser test (tests/integration/web_browser.rs) drives Debian's Chromium headless
 # through chromedriver (WebDriver).
 for p in chromium chromium-driver; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")

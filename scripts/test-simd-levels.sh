@@ -24,8 +24,8 @@ native=$(grep -o -m1 -w -E 'avx512f' /proc/cpuinfo || grep -o -m1 -w -E 'avx2' /
 # against the float64 reference, Flex against ONNX Runtime). The rest of the suite compares
 # runs on one code path; under qemu it would take hours.
 suites=(
-  "--test train_gradients|a_training_step_on_flex"
-  "--test train_parity|"
+  "--test integration|train_gradients::a_training_step_on_flex"
+  "--test integration|train_parity::"
 )
 run_level() {
   local label=$1 runner=$2

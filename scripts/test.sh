@@ -2,12 +2,14 @@
 # The whole test suite, on a fresh machine: installs what it needs (the Debian packages, the
 # ONNX Runtime library from the pinned wheel, cargo-nextest where it is missing), then runs
 # every unit, hardware-in-the-loop and integration test with all features, and prints the
-# total. Idempotent. Arguments go to `cargo nextest run` (a filter, `--test poses`,
+# total. Idempotent. Arguments go to `cargo nextest run` (a filter, `-E 'test(/^poses::/)'`,
 # `--no-run`, ...).
 #
 # The runner is cargo-nextest (config in .config/nextest.toml): each test in its own
-# process, the tests of all 23 test binaries sharing the two cores, where `cargo test` runs
-# the binaries one after another. Measured on this 2-core VM with the tests built: 424 s
+# process, the tests of all test binaries (the library's, the binary's and the one
+# integration binary, tests/integration/) sharing the two cores, where `cargo test` runs
+# the binaries one after another and the tests of one binary in threads of one process.
+# Measured on this 2-core VM with the tests built, when there were 23 binaries: 424 s
 # against 458 s. It also kills a hung test after 10 minutes.
 set -euo pipefail
 cd "$(dirname "$0")/.."

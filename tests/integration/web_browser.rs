@@ -7,7 +7,7 @@
 //!
 //! Needs `chromium` and `chromium-driver` (scripts/install-build-deps.sh installs them).
 
-mod common;
+use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};

@@ -4,7 +4,7 @@
 //! not the identity, and burn must use the running statistics as ONNX does.
 #![cfg(feature = "train")]
 
-mod common;
+use crate::common;
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};

@@ -1,5 +1,5 @@
 //! The trainer's gradients on each backend against an independent float64 reference
-//! (`tests/common/reference_resnet.rs`): one ResNet-18 training step (batch-statistics
+//! (`tests/integration/common/reference_resnet.rs`): one ResNet-18 training step (batch-statistics
 //! BatchNorm, MSE) on Flex and, with `train-wgpu`, on wgpu through Mesa's lavapipe.
 //!
 //! Why a reference and not backend against backend: these inputs put one ReLU input of

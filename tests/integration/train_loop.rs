@@ -4,7 +4,7 @@
 //! evaluation drives exactly like `jetpilot eval` on the exported best.onnx).
 #![cfg(feature = "train")]
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

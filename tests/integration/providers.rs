@@ -4,7 +4,7 @@
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
-mod common;
+use crate::common;
 
 use jetpilot::policy::ort_policy::OrtOptions;
 use jetpilot::policy::providers::{self, CudaOptions, GpuOptions, TensorrtOptions};

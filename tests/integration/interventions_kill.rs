@@ -62,7 +62,7 @@ fn run_and_kill(path: &Path, min_len: u64, delay: Duration) {
     let exe = std::env::current_exe().expect("current_exe");
     let mut child = Command::new(exe)
         .args([
-            "kill_child_entry",
+            "interventions_kill::kill_child_entry",
             "--exact",
             "--nocapture",
             "--test-threads=1",

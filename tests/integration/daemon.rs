@@ -4,13 +4,13 @@
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh; the test command runs it).
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use common::{FlakyBus, ScriptedPolicy, ScriptedSource, Step};
+use crate::common::{FlakyBus, ScriptedPolicy, ScriptedSource, Step};
 use embedded_hal_mock::eh1::delay::NoopDelay;
 use jetpilot::camera::folder::FolderSource;
 use jetpilot::clock::{Clock, MonotonicClock};

@@ -5,7 +5,7 @@
 //! with `e2fsck -fn`; every bad input is refused with the image unchanged; a failure after
 //! the write is undone byte for byte.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -3,7 +3,7 @@
 //! silent, a page that closes), sliders reaching the steering law, and clients that never
 //! read costing the control loop nothing.
 
-mod common;
+use crate::common;
 
 use std::net::SocketAddr;
 use std::path::Path;

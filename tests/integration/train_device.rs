@@ -121,7 +121,7 @@ mod wgpu {
         assert!(diff <= 1e-4, "max |flex - wgpu| = {diff}");
     }
 
-    // One training step's gradients on wgpu and on Flex: tests/train_gradients.rs checks
+    // One training step's gradients on wgpu and on Flex: tests/integration/train_gradients.rs checks
     // each against a float64 reference (backend against backend is ill-posed there).
 
     /// Imitation learning on `wgpu:cpu` runs its whole loop: epochs, checkpoints, the

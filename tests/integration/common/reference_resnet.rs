@@ -6,7 +6,7 @@
 //! has an input within float32 rounding of zero, a float32 backend may take the other
 //! branch and is still right, so the caller can hand in the backend's own branch decisions
 //! ([`Gates`]) and have the reference differentiate through those (see
-//! `tests/train_gradients.rs`).
+//! `tests/integration/train_gradients.rs`).
 #![allow(dead_code)]
 
 use std::collections::BTreeMap;

@@ -4,7 +4,7 @@
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Command, Stdio};

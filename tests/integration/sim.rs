@@ -3,7 +3,7 @@
 //! road is counted as interventions with the paper's accounting; a simulated run with a
 //! real model is deterministic for a seed; `jetpilot eval` reports the protocol's numbers.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 

@@ -4,7 +4,7 @@
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
