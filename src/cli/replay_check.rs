@@ -54,6 +54,11 @@ pub struct OffsetRow {
     /// Mean absolute difference of the steering output, and of the other one.
     pub steering_diff: f64,
     pub other_diff: f64,
+    /// Mean absolute difference of the two views' pixels, in levels of 255 (every
+    /// channel): what the replay shows differently, whatever the model makes of it. At the
+    /// recorded pose only the recording's JPEG compression and the camera's effects are
+    /// left; a pose that did not match the world's would show another piece of the track.
+    pub pixel_diff: f64,
     /// Share of the replayed views' floor that a recorded frame saw.
     pub coverage: f64,
 }
@@ -143,7 +148,8 @@ pub fn compare(
     let mut shown: Vec<(usize, usize, Vec<u8>, Vec<u8>)> = Vec::new();
     let mut rows = Vec::with_capacity(OFFSETS.len());
     for (row, &(lateral, turn_deg)) in OFFSETS.iter().enumerate() {
-        let (mut sum_r, mut sum_p, mut d_steer, mut d_other, mut cov) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let (mut sum_r, mut sum_p, mut d_steer, mut d_other) = (0.0, 0.0, 0.0, 0.0);
+        let (mut d_pixels, mut cov) = (0.0, 0.0);
         for &i in &picks {
             let at = recorded[i];
             let (s, c) = at.heading.sin_cos();
@@ -161,6 +167,7 @@ pub fn compare(
             place_keeping_look(&mut replay, in_replay);
             rendered.observe(&mut frame_r);
             replay.observe(&mut frame_p);
+            d_pixels += mean_abs_level_diff(&frame_r, &frame_p);
             if let Some(synth) = replay.synthesizer() {
                 cov += synth.synthesize_from(i, &in_replay, &mut scratch).coverage as f64;
             }
@@ -183,6 +190,7 @@ pub fn compare(
             replayed: sum_p / n,
             steering_diff: d_steer / n,
             other_diff: d_other / n,
+            pixel_diff: d_pixels / n,
             coverage: cov / n,
         });
     }
@@ -234,6 +242,17 @@ fn correction_kept(rows: &[OffsetRow]) -> f64 {
     if rr > 0.0 { rp / rr } else { f64::NAN }
 }
 
+/// Mean absolute difference of two equally long byte buffers, in levels (0 for two empty
+/// ones).
+fn mean_abs_level_diff(a: &[u8], b: &[u8]) -> f64 {
+    debug_assert_eq!(a.len(), b.len());
+    if a.is_empty() {
+        return 0.0;
+    }
+    let sum: u64 = a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u64).sum();
+    sum as f64 / a.len() as f64
+}
+
 /// Puts the car at `pose` without drawing a new look (placing does, for a new episode).
 fn place_keeping_look(world: &mut World, pose: Pose2) {
     let look = world.appearance().cloned();
@@ -248,16 +267,19 @@ fn print_comparison(c: &Comparison, steer: usize) {
         "{} at {} recorded poses, rendered world against replay ({name} output):",
         c.model, c.poses
     );
-    println!("  sideways  turned   rendered  replayed   |diff|  |other diff|  coverage");
+    println!(
+        "  sideways  turned   rendered  replayed   |diff|  |other diff|  |pixel diff|  coverage"
+    );
     for r in &c.rows {
         println!(
-            "  {:+6.2} m  {:+5.1}°   {:+8.3}  {:+8.3}  {:7.3}  {:12.3}  {:8.2}",
+            "  {:+6.2} m  {:+5.1}°   {:+8.3}  {:+8.3}  {:7.3}  {:12.3}  {:12.1}  {:8.2}",
             r.lateral_m,
             r.turn_deg,
             r.rendered,
             r.replayed,
             r.steering_diff,
             r.other_diff,
+            r.pixel_diff,
             r.coverage
         );
     }
@@ -279,8 +301,20 @@ mod tests {
             replayed,
             steering_diff: 0.0,
             other_diff: 0.0,
+            pixel_diff: 0.0,
             coverage: 1.0,
         }
+    }
+
+    #[test]
+    fn pixel_diff_is_the_mean_absolute_level_difference() {
+        // |10 - 14| + |200 - 190| + |0 - 0| + |255 - 0| = 4 + 10 + 0 + 255 = 269, over 4.
+        assert_eq!(
+            mean_abs_level_diff(&[10, 200, 0, 255], &[14, 190, 0, 0]),
+            67.25
+        );
+        assert_eq!(mean_abs_level_diff(&[7; 12], &[7; 12]), 0.0);
+        assert_eq!(mean_abs_level_diff(&[], &[]), 0.0);
     }
 
     #[test]

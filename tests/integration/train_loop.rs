@@ -558,10 +558,19 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
 
     // `eval --compare-render`: the same poses in the replay and in the world it was
     // recorded in (the path road's poses are moved; the comparison moves them back). At a
-    // recorded pose the replayed view is the recorded frame (a JPEG of 32x32 pixels),
-    // rendered at that pose: the model's outputs there agree to about a hundredth (a
-    // 1-epoch model), far better than at the moved and turned poses (measured: 0.015
-    // against 0.059 in steering); a pose off by the path's shift (about 0.3 m) would not.
+    // recorded pose the replayed view is the recorded frame (a JPEG of 32x32 pixels) and
+    // the rendered one is drawn at that pose: their pixels differ by the JPEG's error only
+    // (measured: 3.2 levels; 3.7-4.8 at the moved and turned poses, which are re-projected).
+    // With the path's shift (about 0.3 m) left out of the comparison they differ by 32.7,
+    // and the test fails.
+    //
+    // The model is judged against its own reach, not against the moved poses' differences:
+    // a 1-epoch model's outputs depend on the float rounding of the CPU that trained it
+    // (an AMD EPYC failed the bound "half the moved poses' mean difference", 0.020 against
+    // 0.027, that held where it was set). Over seeds 1-5 of `train il` there, the at-pose
+    // steering difference was 0.009-0.032, 5-17 % of how far the rendered outputs move
+    // across the offsets (their reach, 0.09-0.46); with the shift left out, 75 % and 140 %
+    // (seeds 3 and 4).
     let cmp = dir.path().join("compare.json");
     let stdout = ok(&jetpilot(
         &["eval", "--config"],
@@ -592,14 +601,18 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     assert!(v["poses"].as_u64().unwrap() >= 40, "{v}");
     let at_pose = &rows[0];
     assert!(at_pose["coverage"].as_f64().unwrap() > 0.99, "{v}");
-    let mean_diff = v["mean_steering_diff"].as_f64().unwrap();
+    let field = |row: &serde_json::Value, key: &str| row[key].as_f64().unwrap();
     assert!(
-        at_pose["steering_diff"].as_f64().unwrap() < 0.5 * mean_diff,
-        "{v}"
+        field(at_pose, "pixel_diff") < 8.0,
+        "the views at the recorded pose, levels: {v}"
     );
-    for key in ["steering_diff", "other_diff"] {
-        assert!(at_pose[key].as_f64().unwrap() < 0.03, "{key}: {v}");
-    }
+    let rendered: Vec<f64> = rows.iter().map(|r| field(r, "rendered")).collect();
+    let reach = rendered.iter().cloned().fold(f64::MIN, f64::max)
+        - rendered.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(
+        field(at_pose, "steering_diff") < 0.4 * reach,
+        "the model's outputs at the recorded pose, against their reach {reach}: {v}"
+    );
     // A replay config is needed, and a rendered world to compare with.
     let out = jetpilot(
         &["eval", "--config"],
