@@ -397,6 +397,12 @@ fn ddpg_with_trainable_backbones_trains_the_exported_trunk() {
 /// actor must hold a small left steering; the initial actor steers straight (fc weights 0,
 /// bias speed 0.6, steering 0), so it leaves the road every few seconds. DDPG, seeded,
 /// with a short budget, must bring the 20 s test to 0 interventions.
+///
+/// The budget is the worst seed's, not seed 3's: another CPU rounds the updates
+/// differently, and the run then goes as another seed would. Measured on an AMD EPYC
+/// (2026-12-01), seeds 1-11 reached 0 at episodes 5-45, but for seed 4 at 75 (1
+/// intervention left at 60, the old budget); seed 3 at episode 5. The run stops at the
+/// first eval without an intervention, so the budget costs only a slow seed time.
 #[test]
 fn ddpg_removes_the_interventions_of_a_biased_policy() {
     use jetpilot::config::Config;
@@ -431,7 +437,7 @@ fn ddpg_removes_the_interventions_of_a_biased_policy() {
     let mut opts = DdpgOptions::new(dir.path().join("ddpg"), cfg);
     opts.init = Some(init);
     opts.seed = 3;
-    opts.max_episodes = 60;
+    opts.max_episodes = 120;
     opts.episode_steps = 150;
     opts.eval_every = 5;
     opts.eval_seconds = 20.0;
