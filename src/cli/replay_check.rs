@@ -14,6 +14,7 @@ use jetpilot::config::Config;
 use jetpilot::policy::Policy;
 use jetpilot::policy::contract::OutputKind;
 use jetpilot::policy::preprocess::Preprocessor;
+use jetpilot::score::agreement::mean_abs_difference;
 use jetpilot::score::contact::contact_sheet;
 use jetpilot::sim::Pose2;
 use jetpilot::sim::setup::{self, FrameMode};
@@ -167,7 +168,7 @@ pub fn compare(
             place_keeping_look(&mut replay, in_replay);
             rendered.observe(&mut frame_r);
             replay.observe(&mut frame_p);
-            d_pixels += mean_abs_level_diff(&frame_r, &frame_p);
+            d_pixels += mean_abs_difference(&frame_r, &frame_p);
             if let Some(synth) = replay.synthesizer() {
                 cov += synth.synthesize_from(i, &in_replay, &mut scratch).coverage as f64;
             }
@@ -242,17 +243,6 @@ fn correction_kept(rows: &[OffsetRow]) -> f64 {
     if rr > 0.0 { rp / rr } else { f64::NAN }
 }
 
-/// Mean absolute difference of two equally long byte buffers, in levels (0 for two empty
-/// ones).
-fn mean_abs_level_diff(a: &[u8], b: &[u8]) -> f64 {
-    debug_assert_eq!(a.len(), b.len());
-    if a.is_empty() {
-        return 0.0;
-    }
-    let sum: u64 = a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u64).sum();
-    sum as f64 / a.len() as f64
-}
-
 /// Puts the car at `pose` without drawing a new look (placing does, for a new episode).
 fn place_keeping_look(world: &mut World, pose: Pose2) {
     let look = world.appearance().cloned();
@@ -304,17 +294,6 @@ mod tests {
             pixel_diff: 0.0,
             coverage: 1.0,
         }
-    }
-
-    #[test]
-    fn pixel_diff_is_the_mean_absolute_level_difference() {
-        // |10 - 14| + |200 - 190| + |0 - 0| + |255 - 0| = 4 + 10 + 0 + 255 = 269, over 4.
-        assert_eq!(
-            mean_abs_level_diff(&[10, 200, 0, 255], &[14, 190, 0, 0]),
-            67.25
-        );
-        assert_eq!(mean_abs_level_diff(&[7; 12], &[7; 12]), 0.0);
-        assert_eq!(mean_abs_level_diff(&[], &[]), 0.0);
     }
 
     #[test]

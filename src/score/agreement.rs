@@ -57,7 +57,8 @@ pub fn thumbnail(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Mean absolute difference of two thumbnails (0..255).
+/// Mean absolute difference of two equally long images or thumbnails, in levels (0..255;
+/// 0 for two empty ones). `eval --compare-render` reports it as `pixel_diff`.
 pub fn mean_abs_difference(a: &[u8], b: &[u8]) -> f64 {
     let sum: u64 = a
         .iter()
@@ -131,6 +132,17 @@ mod tests {
 
     fn flat(grey: u8) -> Vec<u8> {
         vec![grey; THUMB_PX * THUMB_PX]
+    }
+
+    #[test]
+    fn pixel_diff_is_the_mean_absolute_level_difference() {
+        // |10 - 14| + |200 - 190| + |0 - 0| + |255 - 0| = 4 + 10 + 0 + 255 = 269, over 4.
+        assert_eq!(
+            mean_abs_difference(&[10, 200, 0, 255], &[14, 190, 0, 0]),
+            67.25
+        );
+        assert_eq!(mean_abs_difference(&[7; 12], &[7; 12]), 0.0);
+        assert_eq!(mean_abs_difference(&[], &[]), 0.0);
     }
 
     #[test]

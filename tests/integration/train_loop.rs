@@ -575,7 +575,7 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     // (an AMD EPYC failed the bound "half the moved poses' mean difference", 0.020 against
     // 0.027, that held where it was set). Over seeds 1-5 of `train il` there, the at-pose
     // steering difference was 0.009-0.032, 5-17 % of how far the rendered outputs move
-    // across the offsets (their reach, 0.09-0.46); with the shift left out, 75 % and 140 %
+    // across the offsets (their reach, 0.09-0.46); with the shift left out, 75 % and 143 %
     // (seeds 3 and 4).
     let cmp = dir.path().join("compare.json");
     let stdout = ok(&jetpilot(
