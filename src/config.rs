@@ -42,6 +42,21 @@ pub enum ConfigError {
 
 pub type Result<T> = std::result::Result<T, ConfigError>;
 
+/// Floats as the shortest decimal of their `f32` (every float key is an `f32`).
+fn shortest_floats(v: &mut toml::Value) {
+    match v {
+        toml::Value::Float(f) => {
+            let short = (*f as f32).to_string();
+            if let Ok(g) = short.parse::<f64>() {
+                *f = g;
+            }
+        }
+        toml::Value::Array(items) => items.iter_mut().for_each(shortest_floats),
+        toml::Value::Table(t) => t.iter_mut().for_each(|(_, v)| shortest_floats(v)),
+        _ => {}
+    }
+}
+
 /// The whole configuration. Every section and key is optional in the file.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -485,7 +500,19 @@ impl Config {
         Ok(cfg)
     }
 
-    fn resolve_paths(&mut self, dir: &Path) {
+    /// The config as TOML that [`Config::parse`] reads back to the same value: every key
+    /// written, each number in the shortest form that is the same `f32` (`0.1`, not the
+    /// `0.10000000149011612` that f32's widening would print).
+    pub fn to_toml(&self) -> std::result::Result<String, toml::ser::Error> {
+        let mut value = toml::Value::try_from(self)?;
+        shortest_floats(&mut value);
+        toml::to_string_pretty(&value)
+    }
+
+    /// Makes every relative path key (`camera.path`, `model.path`, `sim.recording`, ...)
+    /// relative to `dir` instead: with `dir` absolute, the config means the same files
+    /// wherever it is read from. [`Config::load`] does this with the file's folder.
+    pub fn resolve_paths(&mut self, dir: &Path) {
         let fix = |p: &mut PathBuf| {
             if p.is_relative() {
                 *p = dir.join(&*p);
@@ -821,6 +848,41 @@ mod tests {
         .unwrap();
         let cfg = Config::load(&p).unwrap();
         assert_eq!(cfg.camera.path, dir.path().join("frames"));
+        assert_eq!(cfg.model.path, PathBuf::from("/abs/m.onnx"));
+    }
+
+    #[test]
+    fn every_shipped_config_written_as_toml_reads_back_the_same() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "toml") {
+                continue;
+            }
+            let cfg = Config::load(&path).unwrap();
+            let text = cfg.to_toml().unwrap();
+            let back = Config::parse(&text, "written").unwrap();
+            assert_eq!(back, cfg, "{}", path.display());
+            seen += 1;
+        }
+        assert!(seen >= 5, "{seen} configs");
+        // Numbers as a person would write them.
+        let text = Config::default().to_toml().unwrap();
+        assert!(text.contains("steering_gain = 0.2\n"), "{text}");
+        assert!(!text.contains("0000000"), "{text}");
+    }
+
+    #[test]
+    fn resolving_against_another_folder_moves_only_relative_paths() {
+        let mut cfg = Config::parse(
+            "[camera]\npath = \"frames\"\n[model]\npath = \"/abs/m.onnx\"\n[sim]\nrecording = \"tub\"\n",
+            "t",
+        )
+        .unwrap();
+        cfg.resolve_paths(Path::new("/base"));
+        assert_eq!(cfg.camera.path, PathBuf::from("/base/frames"));
+        assert_eq!(cfg.sim.recording, Some(PathBuf::from("/base/tub")));
         assert_eq!(cfg.model.path, PathBuf::from("/abs/m.onnx"));
     }
 

@@ -3,7 +3,7 @@
 //! against a tub whose poses are known.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
@@ -87,11 +87,35 @@ fn print_calibration(est: &odometry::Estimate) {
     }
 }
 
-pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
-    let sim = match &args.config {
-        Some(c) => Config::load(c)?.sim,
-        None => Default::default(),
+/// The config the poses are estimated with, every relative path made absolute (the
+/// replay config written beside the new tub must mean the same files wherever it lies).
+fn load_config(path: Option<&Path>) -> anyhow::Result<Config> {
+    let mut cfg = match path {
+        Some(c) => Config::load(c)?,
+        None => Config::default(),
     };
+    let cwd = std::env::current_dir().context("the current folder")?;
+    cfg.resolve_paths(&cwd);
+    Ok(cfg)
+}
+
+/// `replay.toml` for the tub at `out`, made from the config the poses were estimated with.
+fn replay_file(
+    args: &PosesArgs,
+    cfg: &Config,
+    out: &Path,
+) -> anyhow::Result<(&'static str, String)> {
+    let made_from = match &args.config {
+        Some(c) => c.display().to_string(),
+        None => "the JetBot defaults".to_string(),
+    };
+    let text = output::replay_config(cfg, &made_from, out)?;
+    Ok((output::REPLAY_CONFIG, text))
+}
+
+pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
+    let cfg = load_config(args.config.as_deref())?;
+    let sim = cfg.sim.clone();
     let tub = TubReader::open(&args.tub)
         .with_context(|| format!("reading the tub {}", args.tub.display()))?;
     let params = OdometryParams {
@@ -100,7 +124,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         ..OdometryParams::default()
     };
     if args.check {
-        return check_against_truth(&args, &tub, &sim, params);
+        return check_against_truth(&args, &tub, &cfg, params);
     }
     if let Some(rec) = tub.records().find(|r| r.pose.is_some()) {
         anyhow::bail!(
@@ -126,7 +150,8 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     for w in &est.warnings {
         tracing::warn!("{w}");
     }
-    let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep)?;
+    let replay = replay_file(&args, &cfg, &out)?;
+    let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep, &[replay])?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
     print_calibration(&est);
@@ -141,15 +166,30 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         out.display(),
         est.poses.len().saturating_sub(1)
     );
+    print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
+}
+
+/// How to drive the new tub's replay.
+fn print_replay_use(out: &Path) {
+    let cfg = out.join(output::REPLAY_CONFIG);
+    println!(
+        "replay simulator: {} (the path as the road; [sim.path] lanes = 2 on the JetBot mat)\n  \
+         jetpilot eval --config {} --model MODEL.onnx --seconds 120\n  \
+         jetpilot train ddpg --sim {} --init MODEL.onnx",
+        cfg.display(),
+        cfg.display(),
+        cfg.display()
+    );
 }
 
 fn check_against_truth(
     args: &PosesArgs,
     tub: &TubReader,
-    sim: &jetpilot::sim::setup::SimConfig,
+    cfg: &Config,
     params: OdometryParams,
 ) -> anyhow::Result<ExitCode> {
+    let sim = &cfg.sim;
     let truth: HashMap<u64, Pose2> = tub
         .records()
         .filter_map(|r| r.pose.map(|(x, y, h)| (r.index, Pose2::new(x, y, h))))
@@ -214,9 +254,18 @@ fn check_against_truth(
         png.display()
     );
     if let Some(out) = &args.out {
-        let n = output::write_tub(tub, &est, out, super::unix_now(), Labels::RobotOnly)?;
+        let replay = replay_file(args, cfg, out)?;
+        let n = output::write_tub(
+            tub,
+            &est,
+            out,
+            super::unix_now(),
+            Labels::RobotOnly,
+            &[replay],
+        )?;
         output::write_csv(&est, &out.join("poses.csv"))?;
         println!("{n} records with the estimated poses -> {}", out.display());
+        print_replay_use(out);
     }
     Ok(ExitCode::SUCCESS)
 }

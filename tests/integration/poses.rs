@@ -138,20 +138,23 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
     let first = est.records().next().unwrap();
     assert!(first.wheels.is_some());
 
-    // The estimated poses make a replay simulator of the recording (issue 12, item 3): its
-    // path is the road, and the expert drives it without leaving it.
-    let cfg = dir.path().join("replay.toml");
-    let text = std::fs::read_to_string(repo("config/sim.toml")).unwrap();
-    assert!(text.contains("frames = \"render\"") && text.contains("road = \"track\""));
-    std::fs::write(
-        &cfg,
-        text.replace(
-            "frames = \"render\"",
-            &format!("frames = \"replay\"\nrecording = {out:?}"),
-        )
-        .replace("road = \"track\"", "road = \"path\""),
-    )
-    .unwrap();
+    // The estimated poses make a replay simulator of the recording (issue 12, item 3), in
+    // the same command: the new tub's replay.toml, whose road is the path. The folder can
+    // be moved as a whole, and the expert drives its replay without leaving the road.
+    assert!(
+        stdout.contains("replay simulator:") && stdout.contains("train ddpg --sim"),
+        "{stdout}"
+    );
+    let text = std::fs::read_to_string(out.join("replay.toml")).unwrap();
+    assert!(
+        text.contains("frames = \"replay\"")
+            && text.contains("recording = \".\"")
+            && text.contains("road = \"path\""),
+        "{text}"
+    );
+    let moved = dir.path().join("moved");
+    std::fs::rename(&out, &moved).unwrap();
+    let cfg = moved.join("replay.toml");
     let o = jetpilot(&[
         "-q",
         "eval",
@@ -168,6 +171,7 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(text.contains("interventions  0"), "{text}");
+    std::fs::rename(&moved, &out).unwrap();
 
     // Nothing is overwritten, and a tub that has poses is not re-estimated.
     let o = jetpilot(&["poses", "--tub", &bare.display().to_string()]);

@@ -3,14 +3,17 @@
 //!
 //! The new tub is written into `<out>.partial` and renamed to `<out>` when complete, so an
 //! interrupted run leaves the original tub as it was and no half-written tub under the
-//! name asked for.
+//! name asked for. With it goes `replay.toml`, the config that makes the new tub a
+//! replayed-frame simulator (its path as the road), so a recording becomes one in one command.
 
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use super::super::setup::{FrameMode, RoadSource};
 use super::super::{Pose2, SimError};
 use super::{Estimate, FramePose};
+use crate::config::Config;
 use crate::dataset::tub::{TubInputs, TubReader, TubWriter};
 
 fn file_err(path: &Path, reason: impl std::fmt::Display) -> SimError {
@@ -49,14 +52,46 @@ pub enum Labels {
     RobotOnly,
 }
 
+/// The name of the replay config written into the new tub's folder.
+pub const REPLAY_CONFIG: &str = "replay.toml";
+
+/// The text of `<out>/replay.toml`: `base` (the config the poses were estimated with, its
+/// paths made absolute) with `sim.frames = "replay"`, `sim.recording = "."` (the folder
+/// the file is in) and `sim.road = "path"`, random layouts off (they are rendered only),
+/// under a header that says how to use it. `made_from` names `base` in the header.
+pub fn replay_config(base: &Config, made_from: &str, out: &Path) -> Result<String, SimError> {
+    let mut cfg = base.clone();
+    cfg.sim.frames = FrameMode::Replay;
+    cfg.sim.recording = Some(PathBuf::from("."));
+    cfg.sim.road = RoadSource::Path;
+    cfg.sim.layouts.enabled = false;
+    let body = cfg
+        .to_toml()
+        .map_err(|e| SimError::Invalid(format!("writing {REPLAY_CONFIG}: {e}")))?;
+    let here = out.join(REPLAY_CONFIG);
+    let here = here.display();
+    Ok(format!(
+        "# A replayed-frame simulator of the recording in this folder, written by `jetpilot poses`\n\
+         # from {made_from}: the recorded frames re-projected around their estimated poses, with\n\
+         # the recorded path as the road (README, \"Replay a real recording\").\n\
+         #   jetpilot eval --config {here} --model MODEL.onnx --seconds 120\n\
+         #   jetpilot train ddpg --sim {here} --init MODEL.onnx\n\
+         # [sim.path] lanes: 1 when the path runs in a lane between two lines, 2 on the JetBot\n\
+         # mat (the path is the right lane of a two-lane road). Paths are absolute, but for\n\
+         # sim.recording: \".\" is this folder, so the folder can be moved as a whole.\n\n{body}"
+    ))
+}
+
 /// Writes every live record of `tub` that has a pose in `estimate`, with that pose, to a
-/// new tub at `out` (which must not exist). Returns the records written.
+/// new tub at `out` (which must not exist), with `files` (name, text) beside the records,
+/// all or nothing. Returns the records written.
 pub fn write_tub(
     tub: &TubReader,
     estimate: &Estimate,
     out: &Path,
     created_at: f64,
     labels: Labels,
+    files: &[(&str, String)],
 ) -> Result<usize, SimError> {
     refuse_existing(out)?;
     let partial = partial_dir(out);
@@ -97,6 +132,13 @@ pub fn write_tub(
     }
     w.flush_and_sync().map_err(|e| file_err(&partial, e))?;
     drop(w);
+    for (name, text) in files {
+        let path = partial.join(name);
+        let mut f = std::fs::File::create(&path).map_err(|e| file_err(&path, e))?;
+        f.write_all(text.as_bytes())
+            .and_then(|()| f.sync_all())
+            .map_err(|e| file_err(&path, e))?;
+    }
     std::fs::rename(&partial, out).map_err(|e| file_err(out, e))?;
     Ok(n)
 }
