@@ -139,6 +139,8 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         args.tub.with_file_name(name)
     });
     output::refuse_existing(&out)?;
+    // Written before the estimate runs, so a config that cannot be written costs no run.
+    let replay = replay_file(&args, &cfg, &out)?;
     let est = odometry::estimate(
         &tub,
         &sim.camera,
@@ -150,7 +152,6 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     for w in &est.warnings {
         tracing::warn!("{w}");
     }
-    let replay = replay_file(&args, &cfg, &out)?;
     let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep, &[replay])?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
@@ -205,9 +206,13 @@ fn check_against_truth(
             args.tub.display()
         );
     };
-    if let Some(out) = &args.out {
-        output::refuse_existing(out)?;
-    }
+    let replay = match &args.out {
+        Some(out) => {
+            output::refuse_existing(out)?;
+            Some(replay_file(args, cfg, out)?)
+        }
+        None => None,
+    };
     let opts = ReadOptions {
         every: args.every,
         noise: args.noise,
@@ -253,8 +258,7 @@ fn check_against_truth(
         "trace: {} (grey: truth, green: estimate, red: frames from the wheels)",
         png.display()
     );
-    if let Some(out) = &args.out {
-        let replay = replay_file(args, cfg, out)?;
+    if let (Some(out), Some(replay)) = (&args.out, replay) {
         let n = output::write_tub(
             tub,
             &est,
