@@ -42,12 +42,15 @@ pub enum ConfigError {
 
 pub type Result<T> = std::result::Result<T, ConfigError>;
 
-/// Floats as the shortest decimal of their `f32` (every float key is an `f32`).
+/// Floats that are exactly an `f32` (every float key today) as the shortest decimal of
+/// that `f32`; any other float is left as it is.
 fn shortest_floats(v: &mut toml::Value) {
     match v {
         toml::Value::Float(f) => {
-            let short = (*f as f32).to_string();
-            if let Ok(g) = short.parse::<f64>() {
+            let single = *f as f32;
+            if f64::from(single) == *f
+                && let Ok(g) = single.to_string().parse::<f64>()
+            {
                 *f = g;
             }
         }

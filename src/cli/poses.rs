@@ -100,22 +100,18 @@ fn load_config(path: Option<&Path>) -> anyhow::Result<Config> {
 }
 
 /// `replay.toml` for the tub at `out`, made from the config the poses were estimated with.
-fn replay_file(
-    args: &PosesArgs,
-    cfg: &Config,
-    out: &Path,
-) -> anyhow::Result<(&'static str, String)> {
+fn replay_file(args: &PosesArgs, cfg: &Config) -> anyhow::Result<(&'static str, String)> {
     let made_from = match &args.config {
         Some(c) => c.display().to_string(),
         None => "the JetBot defaults".to_string(),
     };
-    let text = output::replay_config(cfg, &made_from, out)?;
+    let text = output::replay_config(cfg, &made_from)?;
     Ok((output::REPLAY_CONFIG, text))
 }
 
 pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     let cfg = load_config(args.config.as_deref())?;
-    let sim = cfg.sim.clone();
+    let sim = &cfg.sim;
     let tub = TubReader::open(&args.tub)
         .with_context(|| format!("reading the tub {}", args.tub.display()))?;
     let params = OdometryParams {
@@ -140,7 +136,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     });
     output::refuse_existing(&out)?;
     // Written before the estimate runs, so a config that cannot be written costs no run.
-    let replay = replay_file(&args, &cfg, &out)?;
+    let replay = replay_file(&args, &cfg)?;
     let est = odometry::estimate(
         &tub,
         &sim.camera,
@@ -174,12 +170,9 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
 /// How to drive the new tub's replay.
 fn print_replay_use(out: &Path) {
     let cfg = out.join(output::REPLAY_CONFIG);
+    let [eval, ddpg] = output::replay_commands(&cfg);
     println!(
-        "replay simulator: {} (the path as the road; [sim.path] lanes = 2 on the JetBot mat)\n  \
-         jetpilot eval --config {} --model MODEL.onnx --seconds 120\n  \
-         jetpilot train ddpg --sim {} --init MODEL.onnx",
-        cfg.display(),
-        cfg.display(),
+        "replay simulator: {} (the path as the road; [sim.path] lanes = 2 on the JetBot mat)\n  {eval}\n  {ddpg}",
         cfg.display()
     );
 }
@@ -209,7 +202,7 @@ fn check_against_truth(
     let replay = match &args.out {
         Some(out) => {
             output::refuse_existing(out)?;
-            Some(replay_file(args, cfg, out)?)
+            Some(replay_file(args, cfg)?)
         }
         None => None,
     };

@@ -55,11 +55,21 @@ pub enum Labels {
 /// The name of the replay config written into the new tub's folder.
 pub const REPLAY_CONFIG: &str = "replay.toml";
 
-/// The text of `<out>/replay.toml`: `base` (the config the poses were estimated with, its
-/// paths made absolute) with `sim.frames = "replay"`, `sim.recording = "."` (the folder
-/// the file is in) and `sim.road = "path"`, random layouts off (they are rendered only),
-/// under a header that says how to use it. `made_from` names `base` in the header.
-pub fn replay_config(base: &Config, made_from: &str, out: &Path) -> Result<String, SimError> {
+/// The two commands that drive the replay whose config is at `config`: `eval`, then
+/// `train ddpg` against it.
+pub fn replay_commands(config: &Path) -> [String; 2] {
+    let c = config.display();
+    [
+        format!("jetpilot eval --config {c} --model MODEL.onnx --seconds 120"),
+        format!("jetpilot train ddpg --sim {c} --init MODEL.onnx"),
+    ]
+}
+
+/// The text of `replay.toml`: `base` (the config the poses were estimated with, its paths
+/// made absolute) with `sim.frames = "replay"`, `sim.recording = "."` (the folder the file
+/// is in) and `sim.road = "path"`, random layouts off (they are rendered only), under a
+/// header that says how to use it. `made_from` names `base` in the header.
+pub fn replay_config(base: &Config, made_from: &str) -> Result<String, SimError> {
     let mut cfg = base.clone();
     cfg.sim.frames = FrameMode::Replay;
     cfg.sim.recording = Some(PathBuf::from("."));
@@ -68,14 +78,13 @@ pub fn replay_config(base: &Config, made_from: &str, out: &Path) -> Result<Strin
     let body = cfg
         .to_toml()
         .map_err(|e| SimError::Invalid(format!("writing {REPLAY_CONFIG}: {e}")))?;
-    let here = out.join(REPLAY_CONFIG);
-    let here = here.display();
+    let [eval, ddpg] = replay_commands(Path::new(REPLAY_CONFIG));
     Ok(format!(
         "# A replayed-frame simulator of the recording in this folder, written by `jetpilot poses`\n\
          # from {made_from}: the recorded frames re-projected around their estimated poses, with\n\
-         # the recorded path as the road (README, \"Replay a real recording\").\n\
-         #   jetpilot eval --config {here} --model MODEL.onnx --seconds 120\n\
-         #   jetpilot train ddpg --sim {here} --init MODEL.onnx\n\
+         # the recorded path as the road (README, \"Replay a real recording\"). From this folder:\n\
+         #   {eval}\n\
+         #   {ddpg}\n\
          # [sim.path] lanes: 1 when the path runs in a lane between two lines, 2 on the JetBot\n\
          # mat (the path is the right lane of a two-lane road). Paths are absolute, but for\n\
          # sim.recording: \".\" is this folder, so the folder can be moved as a whole.\n\n{body}"
