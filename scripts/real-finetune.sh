@@ -12,7 +12,7 @@
 # Env: FRAMES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
 # epochs = IMAGES / N, at least 10), STARTS (default "sim random"), INPUT_SIZE (the
 # network's input, default 96), BIN (skip the build), CFG (default config/sim.toml), IL_ARGS
-# (more `train il` flags for every run, e.g. "--shift 0.25"). Writes OUT/finetune.csv and
+# (more `train il` flags for every run, e.g. "--shift 0.25"), SEED (`train il --seed`, default 1). Writes OUT/finetune.csv and
 # OUT/finetune.png (mean error against N, one line per start), OUT/<start>_<N>/.
 # The real frames are linked, not copied, into OUT.
 set -euo pipefail
@@ -77,7 +77,7 @@ for n in $FRAMES; do
     echo "== $start start, $got real frames, $epochs epochs"
     # shellcheck disable=SC2086 # IL_ARGS is a list of words
     "$B" train il --config "${CFG:-config/sim.toml}" --input-size "$INPUT_SIZE" --head xy --epochs "$epochs" \
-      --seed 1 "${init[@]}" ${IL_ARGS:-} --data "$d" --out "$r" > "$r.log" 2>&1
+      --seed "${SEED:-1}" "${init[@]}" ${IL_ARGS:-} --data "$d" --out "$r" > "$r.log" 2>&1
     "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
       > "$r/score.txt"
     mean=$(awk '$1 == "model" && $2 == "mean" { print $3 }' "$r/score.txt")

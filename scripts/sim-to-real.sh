@@ -22,6 +22,17 @@
 #               new one every 4 simulated seconds;
 #   matched_layouts: as matched (target LOOKAHEAD ahead, swerves), on random layouts
 #               with lanes 0.09-0.12 m, a new one every 4 simulated seconds.
+#   centred:    as matched_layouts, but the expert drives the road's centre line, where
+#               people click on JetBot's printed mat (its dashed centre line), on roads
+#               CENTRED_LANES wide a lane (default [0.06, 0.07]: the road then spans about
+#               the real frames' 131 px of the bottom row).
+#   centred_scattered: centred's drive and as many scattered poses on the same roads (a
+#               new one every 10), within HEADING degrees of the road (default here 60:
+#               the real frames show the road crossing the view), trained on both.
+#   centred_scattered_tilted: as centred_scattered, the camera tilted TILT degrees (drawn
+#               per look) and the target TILTED_LOOKAHEAD ahead (default 0.20 m: people's
+#               clicks back-projected through the fitted camera lie a median 0.21 m ahead
+#               in low_tilt, and about as far in high_tilt at 20-24 degrees).
 #   tilted:     as matched_layouts, with the camera's tilt drawn with each look from TILT
 #               (default [15.0, 40.0] degrees below the horizontal): JetBot's camera mount
 #               is bent by hand, and the real frames show it at about 16 to 37 degrees.
@@ -49,6 +60,8 @@ LOOKAHEAD=${LOOKAHEAD:-0.135}
 TILT=${TILT:-[15.0, 40.0]}
 LAYOUT_LANES=${LAYOUT_LANES:-[0.09, 0.12]}
 LAYOUT_CORNERS=${LAYOUT_CORNERS:-[0.25, 0.50]}
+CENTRED_LANES=${CENTRED_LANES:-[0.06, 0.07]}
+TILTED_LOOKAHEAD=${TILTED_LOOKAHEAD:-0.20}
 if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   echo "usage: scripts/sim-to-real.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
   echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat); '${REAL}' is not one" >&2
@@ -83,11 +96,23 @@ run() {
     source=(--expert --seconds "$SECONDS_DRIVEN" --record-every 3 --record-frames "$FRAMES"
       --record "$d/demos")
   fi
+  local data=(--data "$d/xy")
+  if [ "$mode" = scatter ]; then
+    source+=(--scatter-heading "${HEADING:-40}")
+  fi
+  if [ "$mode" = scatter_and_drive ]; then
+    # A drive as the drive variants record it, then scattered poses as well; trained on both.
+    source+=(--scatter-heading "${HEADING:-40}")
+    "$B" -q sim --config "$cfg" --expert --seconds "$SECONDS_DRIVEN" --record-every 3 \
+      --record-frames "$FRAMES" --record "$d/demos" --swerve-every 2 "$@" \
+      --record-xy "$d/drive_xy" > "$d/drive.log"
+    data+=(--data "$d/drive_xy")
+  fi
   "$B" -q sim --config "$cfg" "${source[@]}" "$@" --record-xy "$d/xy" --png "$d/look" \
     --real "$REAL" > "$d/sim.log"
   # shellcheck disable=SC2086 # IL_ARGS is a list of words
   "$B" train il --config "$CFG" --input-size 96 --head xy --epochs "$EPOCHS" --seed "${SEED:-1}" \
-    ${IL_ARGS:-} --data "$d/xy" --out "$d/il" > "$d/il.log" 2>&1
+    ${IL_ARGS:-} "${data[@]}" --out "$d/il" > "$d/il.log" 2>&1
   "$B" score --model "$d/il/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$d/score" \
     | tee "$d/score.txt"
 }
@@ -99,10 +124,18 @@ sed "${LAYOUTS} s/^every_s = .*/every_s = 4.0/" "$CFG" > "$OUT/layouts.toml"
 sed "${LAYOUTS} { s/^every_s = .*/every_s = 4.0/; s/^lane_width_m = .*/lane_width_m = $LAYOUT_LANES/;
   s/^corner_radius_m = .*/corner_radius_m = $LAYOUT_CORNERS/ }" \
   "$OUT/matched.toml" > "$OUT/matched_layouts.toml"
+sed "${LAYOUTS} { s/^lane_width_m = .*/lane_width_m = $CENTRED_LANES/;
+  s/^drive_lane = .*/drive_lane = \"centre\"/ }" "$OUT/matched_layouts.toml" > "$OUT/centred.toml"
+sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/; s/^lookahead_m = .*/lookahead_m = $TILTED_LOOKAHEAD/" \
+  "$OUT/centred.toml" > "$OUT/centred_tilted.toml"
 sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched_layouts.toml" \
   > "$OUT/tilted.toml"
 sed "s/^# camera_tilt_deg = .*/camera_tilt_deg = $TILT/" "$OUT/matched.toml" \
   > "$OUT/scattered_tilted.toml"
+grep -q '^drive_lane = "centre"' "$OUT/centred.toml" || {
+  echo "sim-to-real.sh: $CFG has no [sim.layouts] drive_lane line to set" >&2
+  exit 2
+}
 grep -q '^camera_tilt_deg' "$OUT/tilted.toml" || {
   echo "sim-to-real.sh: $CFG has no '# camera_tilt_deg' line to set" >&2
   exit 2
@@ -133,6 +166,21 @@ if wanted matched_layouts; then
   echo "== matched_layouts: as matched, on random layouts with narrow lanes"
   SIM_CFG="$OUT/matched_layouts.toml" run matched_layouts drive --camera jetbot --randomise \
     --random-layouts --swerve-every 2
+fi
+if wanted centred; then
+  echo "== centred: as matched_layouts, the expert on the road's centre line, lanes $CENTRED_LANES m"
+  SIM_CFG="$OUT/centred.toml" run centred drive --camera jetbot --randomise \
+    --random-layouts --swerve-every 2
+fi
+if wanted centred_scattered; then
+  echo "== centred_scattered: centred's drive and scattered poses within ${HEADING:-60} degrees"
+  SIM_CFG="$OUT/centred.toml" HEADING=${HEADING:-60} run centred_scattered scatter_and_drive \
+    --camera jetbot --randomise --random-layouts
+fi
+if wanted centred_scattered_tilted; then
+  echo "== centred_scattered_tilted: as centred_scattered, the camera tilted $TILT degrees, target $TILTED_LOOKAHEAD m"
+  SIM_CFG="$OUT/centred_tilted.toml" HEADING=${HEADING:-60} run centred_scattered_tilted \
+    scatter_and_drive --camera jetbot --randomise --random-layouts
 fi
 if wanted scattered_tilted; then
   echo "== scattered_tilted: as scattered, the camera tilted $TILT degrees, drawn per sample"

@@ -108,13 +108,23 @@ pub struct SimArgs {
     #[arg(long, value_name = "DIR")]
     record_xy: Option<PathBuf>,
     /// Instead of driving, collect data the way JetBot's road-following notebook does: put
-    /// the robot down at N random poses on the road or up to 5 cm beside it, within 40
-    /// degrees of the road's heading, one frame each (a new look and scene each with
-    /// --randomise), labelled with the lane point `[sim.expert] lookahead_m` past the
-    /// nearest road point. Written with --record-xy DIR.
+    /// the robot down at N random poses on the road or up to --scatter-off-road beside it,
+    /// within --scatter-heading of the road's heading, one frame each (a new look and scene
+    /// each with --randomise, a new road every 10 with --random-layouts), labelled with the
+    /// lane point `[sim.expert] lookahead_m` past the nearest road point. Written with
+    /// --record-xy DIR.
     #[arg(long, value_name = "N", requires = "record_xy",
           conflicts_with_all = ["model", "expert", "record", "realtime", "swerve_every"])]
     scatter: Option<u64>,
+    /// With --scatter: the largest angle between the robot and the road, degrees, either
+    /// way (real JetBot datasets show the road crossing the view at 60 degrees and more).
+    #[arg(long, value_name = "DEG", default_value_t = 40.0, requires = "scatter",
+          value_parser = parse_heading_deg)]
+    scatter_heading: f32,
+    /// With --scatter: how far beyond the road's edges the robot may be put down, metres.
+    #[arg(long, value_name = "M", default_value_t = 0.05, requires = "scatter",
+          value_parser = parse_off_road_m)]
+    scatter_off_road: f32,
     /// With --record: keep every Nth control step only, so a fixed number of demonstrations
     /// spans more of the track (e.g. 331 frames over a whole lap: `--seconds 33.1
     /// --record-every 3`, as a human recording at 10 fps would).
@@ -410,7 +420,20 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         return realtime(&cfg, args.model.as_deref(), args.seconds);
     }
     if let (Some(n), Some(dir)) = (args.scatter, &args.record_xy) {
-        return scatter(&cfg, n, dir, args.png.as_deref(), args.real.as_deref());
+        let params = jetpilot::sim::scatter::ScatterParams {
+            lookahead_m: cfg.sim.expert.lookahead_m,
+            max_heading_rad: args.scatter_heading.to_radians(),
+            off_road_m: args.scatter_off_road,
+            ..Default::default()
+        };
+        return scatter(
+            &cfg,
+            &params,
+            n,
+            dir,
+            args.png.as_deref(),
+            args.real.as_deref(),
+        );
     }
     if args.record_xy.is_some() && args.record.is_none() {
         anyhow::bail!("--record-xy needs --record DIR (a drive) or --scatter N (random poses)");
@@ -502,23 +525,20 @@ fn write_contact_sheet(
 /// poses; with --png, the first eight with their targets marked.
 fn scatter(
     cfg: &Config,
+    params: &jetpilot::sim::scatter::ScatterParams,
     n: u64,
     dir: &Path,
     png: Option<&Path>,
     real: Option<&Path>,
 ) -> anyhow::Result<ExitCode> {
-    use jetpilot::sim::scatter::{ScatterParams, write_scattered};
+    use jetpilot::sim::scatter::write_scattered;
     let mut rig = setup::build(cfg)?;
-    let params = ScatterParams {
-        lookahead_m: cfg.sim.expert.lookahead_m,
-        ..ScatterParams::default()
-    };
     let (w, h) = (cfg.sim.camera.width, cfg.sim.camera.height);
     let mut shown: Vec<Vec<u8>> = Vec::new();
     let summary = write_scattered(
         &mut rig.world,
         &rig.camera,
-        &params,
+        params,
         n,
         cfg.sim.seed,
         dir,
@@ -666,5 +686,25 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
             println!("fault: {report}");
             Err(e.into())
         }
+    }
+}
+
+/// `--scatter-heading`: 0 to 90 degrees.
+fn parse_heading_deg(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.0..=90.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not within 0..=90 degrees"))
+    }
+}
+
+/// `--scatter-off-road`: 0 to 0.5 m.
+fn parse_off_road_m(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.0..=0.5).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not within 0..=0.5 m"))
     }
 }

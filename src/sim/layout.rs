@@ -16,7 +16,7 @@ use std::fmt::Write as _;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use super::track::{EDGE_LINE_WIDTH_M, Track};
+use super::track::{DriveLane, EDGE_LINE_WIDTH_M, Track};
 use super::{Result, SimError};
 
 /// Settings of the layout generator, `[sim.layouts]`.
@@ -38,6 +38,9 @@ pub struct LayoutConfig {
     pub corners: [u32; 2],
     /// Chance that a layout is driven clockwise.
     pub clockwise_probability: f32,
+    /// The lane the robot drives: "right" (the track files' default), "left", or "centre"
+    /// (the centre line, as people click it in JetBot's road-following notebook).
+    pub drive_lane: DriveLane,
 }
 
 impl Default for LayoutConfig {
@@ -49,6 +52,7 @@ impl Default for LayoutConfig {
             corner_radius_m: [0.25, 0.50],
             corners: [5, 8],
             clockwise_probability: 0.5,
+            drive_lane: DriveLane::Right,
         }
     }
 }
@@ -244,6 +248,12 @@ fn fillet<R: Rng + ?Sized>(
     let _ = writeln!(text, "name = \"random\"");
     let _ = writeln!(text, "mat = [{}, {}]", mat.0, mat.1);
     let _ = writeln!(text, "lane_width = {lane:.4}");
+    let lane_name = match cfg.drive_lane {
+        DriveLane::Right => "right",
+        DriveLane::Left => "left",
+        DriveLane::Centre => "centre",
+    };
+    let _ = writeln!(text, "drive_lane = \"{lane_name}\"");
     let _ = writeln!(
         text,
         "start = [{:.6}, {:.6}, {:.6}]",
@@ -382,6 +392,22 @@ mod tests {
         );
         // 20, 32 and 8 of 40 when written.
         assert!(outside >= 6, "only {outside} of 40 have an S-bend");
+    }
+
+    #[test]
+    fn layouts_drive_the_configured_lane() {
+        let centre = LayoutConfig {
+            drive_lane: DriveLane::Centre,
+            ..LayoutConfig::default()
+        };
+        let t = random_track(&centre, JETBOT_MAT_M, &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
+        assert_eq!(t.drive_lane(), DriveLane::Centre);
+        assert_eq!(t.lane_offset(), 0.0);
+        // The same draw otherwise: only the lane differs from the default's.
+        let right = draw(3);
+        assert_eq!(right.drive_lane(), DriveLane::Right);
+        assert_eq!(right.lane_offset(), -right.lane_width() / 2.0);
+        assert_eq!(t.length(), right.length());
     }
 
     #[test]

@@ -29,6 +29,8 @@ pub struct ScatterParams {
     /// How far along the lane, from the nearest point on the road, the target lies, metres
     /// (the expert's `lookahead_m`).
     pub lookahead_m: f32,
+    /// With random layouts on: a new layout after every so many samples (0: one for all).
+    pub per_layout: u64,
 }
 
 impl Default for ScatterParams {
@@ -37,6 +39,7 @@ impl Default for ScatterParams {
             off_road_m: 0.05,
             max_heading_rad: 40f32.to_radians(),
             lookahead_m: 0.22,
+            per_layout: 10,
         }
     }
 }
@@ -76,7 +79,8 @@ pub struct ScatterSummary {
 }
 
 /// Renders `n` scattered samples through `world` (a new look and scene per sample when its
-/// appearance is randomised) and writes them to `dir` as `xy_XXX_YYY_<uuid>.jpg`. Poses whose
+/// appearance is randomised; a new road every `per_layout` samples when its random layouts
+/// are on) and writes them to `dir` as `xy_XXX_YYY_<uuid>.jpg`. Poses whose
 /// target is out of view are drawn again, up to 20 tries per sample; `keep` sees each
 /// written frame (RGB) and its pixel label. `camera` gives the frame size; labels go
 /// through the camera each frame was taken with ([`World::camera`]: a look may tilt it).
@@ -97,8 +101,19 @@ pub fn write_scattered(
     let mut frame = vec![0u8; (camera.width * camera.height * 3) as usize];
     let mut jpeg = Vec::new();
     let mut summary = ScatterSummary::default();
+    let mut drawn_for = 0u64;
     let tries = n.saturating_mul(20);
     while summary.written < n && summary.written + summary.out_of_view < tries {
+        // A new road every `per_layout` samples when random layouts are on (a no-op when
+        // they are off); drawn before the pose, so the pose is on the road it sees.
+        if p.per_layout > 0
+            && summary.written > 0
+            && summary.written % p.per_layout == 0
+            && drawn_for != summary.written
+        {
+            world.new_layout();
+            drawn_for = summary.written;
+        }
         let pose = sample_pose(&world.track, p, &mut rng);
         let goal = target(&world.track, &pose, p.lookahead_m);
         world.place(pose);

@@ -4,7 +4,8 @@
 //! A track is described by its centre line: a start pose and a sequence of `line` and `arc`
 //! segments (TOML, see `config/tracks/jetbot_mat.toml`). The road is two lanes wide
 //! (`lane_width` each) with yellow solid edges at +-`road_half_width` and a white dashed line
-//! on the centre line; the robot drives the centre of `drive_lane` ("right" by default).
+//! on the centre line; the robot drives the centre of `drive_lane` ("right" by default), or
+//! the centre line itself (`"centre"`: where people click in JetBot's road-following notebook).
 //!
 //! Loading checks that the centre line closes (end pose = start pose within 1 mm and
 //! 0.1 degree), that every arc is wider than the road's half width, and that the whole road,
@@ -76,12 +77,15 @@ const BUILTIN_TEXT: &str = include_str!("../../config/tracks/jetbot_mat.toml");
 const BUILTIN_ORIGIN: &str = "built-in jetbot_mat (config/tracks/jetbot_mat.toml)";
 
 /// Which lane the robot drives, relative to the direction of travel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DriveLane {
     #[default]
     Right,
     Left,
+    /// The road's centre line, the whole road its lane: JetBot's road-following notebook
+    /// has people click the dashed centre line of its printed mat.
+    Centre,
 }
 
 /// The nearest centre-line point to a query point.
@@ -724,6 +728,7 @@ impl Track {
         match self.drive_lane {
             DriveLane::Right => -half,
             DriveLane::Left => half,
+            DriveLane::Centre => 0.0,
         }
     }
 
@@ -797,8 +802,12 @@ impl Track {
     /// Distance from (x, y) to the nearest boundary of the driving lane (its yellow edge or
     /// the dashed centre line, measured to the lines' middles), positive inside the lane,
     /// negative outside. At the lane centre it is lane_width/2 (0.10 m): the paper's ideal D.
+    /// Driving the centre line, the lane is the whole road: the distance to the nearer edge.
     pub fn lane_edge_distance(&self, x: f32, y: f32) -> f32 {
         let lat = self.query(x, y).lateral;
+        if self.drive_lane == DriveLane::Centre && !self.single_lane {
+            return self.road_half_width() - lat.abs();
+        }
         self.lane_width() / 2.0 - (lat - self.lane_offset()).abs()
     }
 
@@ -1345,6 +1354,18 @@ angle = 180.0
         assert_eq!(left.lane_offset(), 0.10);
         let c = left.lane_pose_at(0.5);
         assert!((left.lane_edge_distance(c.x, c.y) - 0.10).abs() < 1e-5);
+        // A centre-line track drives the centre line, 0.20 m from either edge of the
+        // 0.40 m road; 0.05 m to the right of it is 0.15 m from the right edge.
+        let centre = Track::from_toml(&oval("drive_lane = \"centre\"", None), "o.toml").unwrap();
+        assert_eq!(centre.lane_offset(), 0.0);
+        let c = centre.lane_pose_at(0.5);
+        let m = centre.pose_at(0.5, 0.0);
+        assert!((c.x - m.x).abs() < 1e-6 && (c.y - m.y).abs() < 1e-6);
+        assert!((centre.lane_edge_distance(c.x, c.y) - 0.20).abs() < 1e-5);
+        let r = centre.pose_at(0.5, -0.05);
+        assert!((centre.lane_edge_distance(r.x, r.y) - 0.15).abs() < 1e-5);
+        let o = centre.pose_at(0.5, 0.25);
+        assert!((centre.lane_edge_distance(o.x, o.y) + 0.05).abs() < 1e-5);
     }
 
     #[test]

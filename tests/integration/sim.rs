@@ -859,6 +859,51 @@ fn scattered_samples_are_labelled_jetbot_files_that_repeat_for_a_seed() {
 }
 
 #[test]
+fn scattered_samples_on_random_layouts_draw_a_new_road_every_few_samples() {
+    // With layouts on, `write_scattered` puts the robot down on a new road every
+    // `per_layout` samples; on a centre-line layout every label is a centre-line point.
+    use jetpilot::sim::scatter::{ScatterParams, target, write_scattered};
+    use jetpilot::sim::track::DriveLane;
+    let cfg = small_config(
+        "[sim.layouts]\nenabled = true\nevery_s = 0.0\nlane_width_m = [0.06, 0.07]\n\
+         drive_lane = \"centre\"\n",
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let run = |per_layout: u64, n: u64| {
+        let mut rig = setup::build(&cfg).unwrap();
+        let first = rig.world.track.clone();
+        assert_eq!(first.drive_lane(), DriveLane::Centre);
+        let p = ScatterParams {
+            lookahead_m: 0.135,
+            per_layout,
+            ..ScatterParams::default()
+        };
+        let out = dir.path().join(format!("xy-{per_layout}-{n}"));
+        let mut labels = 0;
+        let summary = write_scattered(&mut rig.world, &rig.camera, &p, n, 5, &out, |_, _| {
+            labels += 1
+        })
+        .unwrap();
+        assert_eq!((summary.written, labels), (n, n));
+        // The label of a pose on the centre line is the centre-line point ahead.
+        let track = rig.world.track.clone();
+        let pose = track.pose_at(0.4, 0.0);
+        let goal = track.pose_at(0.4 + 0.135, 0.0);
+        let t = target(&track, &pose, 0.135);
+        assert!((t.0 - goal.x).abs() < 1e-4 && (t.1 - goal.y).abs() < 1e-4);
+        (first, track)
+    };
+    // 10 samples fit on the first road; the 11th is on a new one.
+    let (first, last) = run(10, 10);
+    assert_eq!(first, last);
+    let (first, last) = run(10, 11);
+    assert_ne!(first, last, "no new road after 10 samples");
+    // 0: one road for all.
+    let (first, last) = run(0, 25);
+    assert_eq!(first, last);
+}
+
+#[test]
 fn random_layouts_change_the_road_keep_the_expert_on_it_and_repeat_for_a_seed() {
     // A new layout every 8 s: about five in 40 s, each with the expert on its lane.
     let run = |seed: u64| {
