@@ -83,7 +83,7 @@ mkdir -p "$OUT"
 VARIANTS=${VARIANTS:-plain randomised matched scattered layouts matched_layouts}
 wanted() { [[ " $VARIANTS " == *" $1 "* ]]; }
 
-# run NAME drive|scatter SIM_ARGS...
+# run NAME drive|scatter|scatter_and_drive SIM_ARGS...
 run() {
   local name=$1 mode=$2
   shift 2
@@ -97,12 +97,11 @@ run() {
       --record "$d/demos")
   fi
   local data=(--data "$d/xy")
-  if [ "$mode" = scatter ]; then
+  if [ "$mode" != drive ]; then
     source+=(--scatter-heading "${HEADING:-40}")
   fi
   if [ "$mode" = scatter_and_drive ]; then
     # A drive as the drive variants record it, then scattered poses as well; trained on both.
-    source+=(--scatter-heading "${HEADING:-40}")
     "$B" -q sim --config "$cfg" --expert --seconds "$SECONDS_DRIVEN" --record-every 3 \
       --record-frames "$FRAMES" --record "$d/demos" --swerve-every 2 "$@" \
       --record-xy "$d/drive_xy" > "$d/drive.log"

@@ -689,22 +689,22 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
     }
 }
 
-/// `--scatter-heading`: 0 to 90 degrees.
-fn parse_heading_deg(s: &str) -> Result<f32, String> {
+/// A number within `lo..=hi` (`unit` names it in the error).
+fn parse_within(s: &str, lo: f32, hi: f32, unit: &str) -> Result<f32, String> {
     let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
-    if (0.0..=90.0).contains(&v) {
+    if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
-        Err(format!("{v} is not within 0..=90 degrees"))
+        Err(format!("{v} is not within {lo}..={hi} {unit}"))
     }
+}
+
+/// `--scatter-heading`: 0 to 90 degrees.
+fn parse_heading_deg(s: &str) -> Result<f32, String> {
+    parse_within(s, 0.0, 90.0, "degrees")
 }
 
 /// `--scatter-off-road`: 0 to 0.5 m.
 fn parse_off_road_m(s: &str) -> Result<f32, String> {
-    let v: f32 = s.parse().map_err(|e| format!("{e}"))?;
-    if (0.0..=0.5).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("{v} is not within 0..=0.5 m"))
-    }
+    parse_within(s, 0.0, 0.5, "m")
 }

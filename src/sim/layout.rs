@@ -248,12 +248,7 @@ fn fillet<R: Rng + ?Sized>(
     let _ = writeln!(text, "name = \"random\"");
     let _ = writeln!(text, "mat = [{}, {}]", mat.0, mat.1);
     let _ = writeln!(text, "lane_width = {lane:.4}");
-    let lane_name = match cfg.drive_lane {
-        DriveLane::Right => "right",
-        DriveLane::Left => "left",
-        DriveLane::Centre => "centre",
-    };
-    let _ = writeln!(text, "drive_lane = \"{lane_name}\"");
+    let _ = writeln!(text, "drive_lane = \"{}\"", cfg.drive_lane.name());
     let _ = writeln!(
         text,
         "start = [{:.6}, {:.6}, {:.6}]",

@@ -101,19 +101,8 @@ pub fn write_scattered(
     let mut frame = vec![0u8; (camera.width * camera.height * 3) as usize];
     let mut jpeg = Vec::new();
     let mut summary = ScatterSummary::default();
-    let mut drawn_for = 0u64;
     let tries = n.saturating_mul(20);
     while summary.written < n && summary.written + summary.out_of_view < tries {
-        // A new road every `per_layout` samples when random layouts are on (a no-op when
-        // they are off); drawn before the pose, so the pose is on the road it sees.
-        if p.per_layout > 0
-            && summary.written > 0
-            && summary.written % p.per_layout == 0
-            && drawn_for != summary.written
-        {
-            world.new_layout();
-            drawn_for = summary.written;
-        }
         let pose = sample_pose(&world.track, p, &mut rng);
         let goal = target(&world.track, &pose, p.lookahead_m);
         world.place(pose);
@@ -134,6 +123,11 @@ pub fn write_scattered(
         jetbot_xy::write_sample(dir, px, py, &jpeg, &uuid)?;
         keep(&frame, (px, py));
         summary.written += 1;
+        // A new road after every `per_layout` samples when random layouts are on (a no-op
+        // when they are off), before the next pose is drawn on it.
+        if p.per_layout > 0 && summary.written % p.per_layout == 0 && summary.written < n {
+            world.new_layout();
+        }
     }
     Ok(summary)
 }

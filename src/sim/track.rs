@@ -88,6 +88,17 @@ pub enum DriveLane {
     Centre,
 }
 
+impl DriveLane {
+    /// The name a track file gives it (serde's lowercase names).
+    pub fn name(self) -> &'static str {
+        match self {
+            DriveLane::Right => "right",
+            DriveLane::Left => "left",
+            DriveLane::Centre => "centre",
+        }
+    }
+}
+
 /// The nearest centre-line point to a query point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackQuery {
@@ -805,10 +816,17 @@ impl Track {
     /// Driving the centre line, the lane is the whole road: the distance to the nearer edge.
     pub fn lane_edge_distance(&self, x: f32, y: f32) -> f32 {
         let lat = self.query(x, y).lateral;
+        self.lane_half_width() - (lat - self.lane_offset()).abs()
+    }
+
+    /// Half the driving lane's width: half a lane, or the whole road's half width when the
+    /// robot drives the centre line of a two-lane road.
+    fn lane_half_width(&self) -> f32 {
         if self.drive_lane == DriveLane::Centre && !self.single_lane {
-            return self.road_half_width() - lat.abs();
+            self.road_half_width()
+        } else {
+            self.lane_width() / 2.0
         }
-        self.lane_width() / 2.0 - (lat - self.lane_offset()).abs()
     }
 
     /// Signed progress from `s_prev` to `s_now`, taking the shorter way round the lap (so a
