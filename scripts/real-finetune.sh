@@ -12,8 +12,12 @@
 # Env: FRAMES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
 # epochs = IMAGES / N, at least 10), STARTS (default "sim random"), INPUT_SIZE (the
 # network's input, default 96), BIN (skip the build), CFG (default config/sim.toml), IL_ARGS
-# (more `train il` flags for every run, e.g. "--shift 0.25"), SEED (`train il --seed`, default 1). Writes OUT/finetune.csv and
-# OUT/finetune.png (mean error against N, one line per start), OUT/<start>_<N>/.
+# (more `train il` flags for every run, e.g. "--shift 0.25"), SEEDS (`train il --seed` of
+# each run, default "$SEED", else 1; several, e.g. "1 2 3", repeat every run per seed).
+# Writes OUT/finetune.csv (one row per run) and OUT/finetune.png (mean error against N, one
+# line per start: the seeds' mean in a band of their sd), OUT/<start>_<N>/ (one seed) or
+# OUT/<start>_<N>_s<seed>/ (several). CSVs of separate runs of this script (other seeds)
+# can be concatenated and drawn the same way with `jetpilot train plot`.
 # The real frames are linked, not copied, into OUT.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,6 +28,7 @@ OUT=${3:-.cache/real-finetune}
 FRAMES=${FRAMES:-25 50 100 all}
 IMAGES=${IMAGES:-3000}
 STARTS=${STARTS:-sim random}
+SEEDS=${SEEDS:-${SEED:-1}}
 INPUT_SIZE=${INPUT_SIZE:-96}
 if [ "$INIT" = - ] && [[ " $STARTS " != *" sim "* ]]; then
   INIT=/dev/null
@@ -57,7 +62,8 @@ TOTAL=$(wc -l < "$OUT/by_time.txt")
 TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the latest ~20 %
 echo "real frames: $TOTAL, the earliest $TRAIN to train on, the rest scored"
 
-echo "frames,start,mean_px,baseline_px,epochs" > "$OUT/finetune.csv"
+echo "frames,start,seed,mean_px,baseline_px,epochs" > "$OUT/finetune.csv"
+read -r -a seeds <<< "$SEEDS"
 for n in $FRAMES; do
   [ "$n" = all ] && n=$TRAIN
   d="$OUT/frames_$n"
@@ -70,20 +76,24 @@ for n in $FRAMES; do
   epochs=$(( IMAGES / got ))
   [ "$epochs" -lt 10 ] && epochs=10
   for start in $STARTS; do
-    r="$OUT/${start}_$n"
-    rm -rf "$r"
-    init=()
-    [ "$start" = sim ] && init=(--init "$INIT")
-    echo "== $start start, $got real frames, $epochs epochs"
-    # shellcheck disable=SC2086 # IL_ARGS is a list of words
-    "$B" train il --config "${CFG:-config/sim.toml}" --input-size "$INPUT_SIZE" --head xy --epochs "$epochs" \
-      --seed "${SEED:-1}" "${init[@]}" ${IL_ARGS:-} --data "$d" --out "$r" > "$r.log" 2>&1
-    "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
-      > "$r/score.txt"
-    mean=$(awk '$1 == "model" && $2 == "mean" { print $3 }' "$r/score.txt")
-    base=$(awk '$1 == "baseline" && $2 == "mean" { print $3 }' "$r/score.txt")
-    echo "   mean error $mean px (baseline $base px)"
-    echo "$got,$start,$mean,$base,$epochs" >> "$OUT/finetune.csv"
+    for seed in "${seeds[@]}"; do
+      r="$OUT/${start}_$n"
+      [ "${#seeds[@]}" -gt 1 ] && r="${r}_s$seed"
+      rm -rf "$r"
+      init=()
+      [ "$start" = sim ] && init=(--init "$INIT")
+      echo "== $start start, $got real frames, $epochs epochs, seed $seed"
+      # shellcheck disable=SC2086 # IL_ARGS is a list of words
+      "$B" train il --config "${CFG:-config/sim.toml}" --input-size "$INPUT_SIZE" --head xy \
+        --epochs "$epochs" --seed "$seed" "${init[@]}" ${IL_ARGS:-} --data "$d" --out "$r" \
+        > "$r.log" 2>&1
+      "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
+        > "$r/score.txt"
+      mean=$(awk '$1 == "model" && $2 == "mean" { print $3 }' "$r/score.txt")
+      base=$(awk '$1 == "baseline" && $2 == "mean" { print $3 }' "$r/score.txt")
+      echo "   mean error $mean px (baseline $base px)"
+      echo "$got,$start,$seed,$mean,$base,$epochs" >> "$OUT/finetune.csv"
+    done
   done
 done
 "$B" train plot --csv "$OUT/finetune.csv" --x frames --y mean_px --series start \

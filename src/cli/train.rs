@@ -30,7 +30,8 @@ pub enum TrainCommand {
     /// experiment_<track>.png (rewards and autonomy against wall time, seed bands).
     Report(ReportArgs),
     /// Draw a line chart from a CSV with a header row: --y against --x, one line per value
-    /// of --series (scripts/sim-to-real.sh plots its fine-tuning study with it).
+    /// of --series; rows repeating an x within a line (seeds) are drawn as their mean in
+    /// a band of their sd (scripts/real-finetune.sh plots its fine-tuning study with it).
     Plot(super::train_plot::PlotArgs),
 }
 

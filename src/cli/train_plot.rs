@@ -1,12 +1,20 @@
 //! `jetpilot train plot`: a line chart from a CSV with a header row, one line per value of
 //! a grouping column (scripts write such CSVs: the fine-tuning study's error against the
 //! number of real frames, say).
+//!
+//! Rows that repeat an x within a line (one per seed, say) are drawn as their mean, in a
+//! shaded band of the sample sd, and each such point is printed:
+//!
+//! ```text
+//! line "sim", x 25: mean 32.0 ± 2.0 (3 rows: 30, 32, 34)
+//! ```
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use jetpilot::train::curve::{Series, plot_png};
+use jetpilot::train::curve::{Band, Series, plot_png, plot_png_with_bands};
+use jetpilot::train::experiment::mean_sd;
 
 #[derive(Debug, clap::Args)]
 pub struct PlotArgs {
@@ -87,38 +95,180 @@ fn read_points(args: &PlotArgs) -> anyhow::Result<Vec<(String, f64, f64)>> {
     Ok(out)
 }
 
-pub fn main(args: PlotArgs) -> anyhow::Result<ExitCode> {
-    let points = read_points(&args)?;
-    let mut series: Vec<Series> = Vec::new();
+/// One drawn point: the mean of the rows at `x` in a line, their sample sd, the rows.
+#[derive(Debug, Clone, PartialEq)]
+struct Aggregated {
+    x: f64,
+    mean: f64,
+    sd: f64,
+    values: Vec<f64>,
+}
+
+/// Groups `(line, x, y)` rows into lines (in order of first appearance) and, within a line,
+/// rows of the same x into one point: their mean and sample sd (0 for one row), x ascending.
+fn aggregate(points: Vec<(String, f64, f64)>) -> Vec<(String, Vec<Aggregated>)> {
+    let mut lines: Vec<(String, Vec<(f64, Vec<f64>)>)> = Vec::new();
     for (group, x, y) in points {
-        match series.iter_mut().find(|s| s.name == group) {
-            Some(s) => s.points.push((x, y)),
-            None => series.push(Series {
-                name: group,
-                points: vec![(x, y)],
-            }),
+        let i = match lines.iter().position(|(name, _)| *name == group) {
+            Some(i) => i,
+            None => {
+                lines.push((group, Vec::new()));
+                lines.len() - 1
+            }
+        };
+        let line = &mut lines[i].1;
+        match line.iter_mut().find(|(at, _)| *at == x) {
+            Some((_, ys)) => ys.push(y),
+            None => line.push((x, vec![y])),
         }
     }
-    for s in &mut series {
-        s.points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    lines
+        .into_iter()
+        .map(|(name, mut xs)| {
+            xs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let points = xs
+                .into_iter()
+                .map(|(x, values)| {
+                    let (mean, sd) = mean_sd(&values).unwrap_or((f64::NAN, 0.0));
+                    Aggregated {
+                        x,
+                        mean,
+                        sd,
+                        values,
+                    }
+                })
+                .collect();
+            (name, points)
+        })
+        .collect()
+}
+
+fn short(v: f64) -> String {
+    let s = format!("{v:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+pub fn main(args: PlotArgs) -> anyhow::Result<ExitCode> {
+    let lines = aggregate(read_points(&args)?);
+    let repeated = lines
+        .iter()
+        .any(|(_, points)| points.iter().any(|p| p.values.len() > 1));
+    if repeated && args.log_y {
+        bail!(
+            "{}: some x repeats within a line (drawn as the mean in an sd band), which needs a \
+             linear y axis: drop --log-y",
+            args.csv.display()
+        );
     }
-    let warning = plot_png(
-        &args.out,
-        &args.title,
-        &args.x,
-        &args.y,
-        &series,
-        args.log_y,
-        (900, 560),
-    )?;
+    for (name, points) in &lines {
+        for p in points.iter().filter(|p| p.values.len() > 1) {
+            let values: Vec<String> = p.values.iter().map(|&v| short(v)).collect();
+            println!(
+                "line {name:?}, x {}: mean {:.1} ± {:.1} ({} rows: {})",
+                short(p.x),
+                p.mean,
+                p.sd,
+                p.values.len(),
+                values.join(", ")
+            );
+        }
+    }
+    let series: Vec<Series> = lines
+        .iter()
+        .map(|(name, points)| Series {
+            name: name.clone(),
+            points: points.iter().map(|p| (p.x, p.mean)).collect(),
+        })
+        .collect();
+    let size = (900, 560);
+    let warning = if repeated {
+        let bands: Vec<Band> = lines
+            .iter()
+            .map(|(_, points)| {
+                points
+                    .iter()
+                    .map(|p| (p.x, p.mean - p.sd, p.mean + p.sd))
+                    .collect()
+            })
+            .collect();
+        plot_png_with_bands(
+            &args.out,
+            (&args.title, &args.x, &args.y),
+            &series,
+            &bands,
+            size,
+        )?
+    } else {
+        plot_png(
+            &args.out,
+            &args.title,
+            &args.x,
+            &args.y,
+            &series,
+            args.log_y,
+            size,
+        )?
+    };
     if let Some(w) = warning {
         eprintln!("warning: {w}");
     }
+    let rows: usize = lines
+        .iter()
+        .flat_map(|(_, points)| points.iter().map(|p| p.values.len()))
+        .sum();
+    let drawn: usize = lines.iter().map(|(_, points)| points.len()).sum();
     println!(
-        "wrote {}: {} line(s), {} point(s)",
+        "wrote {}: {} line(s), {} point(s){}",
         args.out.display(),
-        series.len(),
-        series.iter().map(|s| s.points.len()).sum::<usize>()
+        lines.len(),
+        drawn,
+        if rows > drawn {
+            format!(" (the means of {rows} rows)")
+        } else {
+            String::new()
+        }
     );
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(line: &str, x: f64, y: f64) -> (String, f64, f64) {
+        (line.to_string(), x, y)
+    }
+
+    #[test]
+    fn rows_at_the_same_x_of_a_line_become_their_mean_and_sample_sd() {
+        let lines = aggregate(vec![
+            row("sim", 50.0, 37.0),
+            row("random", 25.0, 38.0),
+            row("sim", 25.0, 30.0),
+            row("sim", 25.0, 34.0),
+            row("sim", 25.0, 32.0),
+            row("random", 25.0, 42.0),
+        ]);
+        let names: Vec<&str> = lines.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["sim", "random"]);
+        let sim = &lines[0].1;
+        assert_eq!(sim.len(), 2);
+        // x ascending: 25 before 50. Mean of 30, 34, 32 is 32; sample sd
+        // sqrt((4 + 4 + 0) / 2) = 2.
+        assert_eq!(sim[0].x, 25.0);
+        assert!((sim[0].mean - 32.0).abs() < 1e-12 && (sim[0].sd - 2.0).abs() < 1e-12);
+        assert_eq!(sim[0].values, [30.0, 34.0, 32.0]);
+        assert_eq!((sim[1].x, sim[1].mean, sim[1].sd), (50.0, 37.0, 0.0));
+        // 38 and 42: mean 40, sd sqrt((4 + 4) / 1) = 2.83.
+        let random = &lines[1].1[0];
+        assert!((random.mean - 40.0).abs() < 1e-12);
+        assert!((random.sd - 8f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn numbers_print_without_trailing_zeros() {
+        assert_eq!(short(25.0), "25");
+        assert_eq!(short(32.25), "32.25");
+        assert_eq!(short(0.1234), "0.123");
+    }
 }

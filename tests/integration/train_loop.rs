@@ -504,6 +504,49 @@ fn train_plot_draws_one_line_per_series_and_names_a_missing_column() {
 }
 
 #[test]
+fn train_plot_draws_the_seeds_mean_where_rows_repeat_an_x() {
+    // real-finetune.sh with SEEDS="1 2 3": one row per seed; the line is their mean.
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("finetune.csv");
+    std::fs::write(
+        &csv,
+        "frames,start,seed,mean_px\n25,sim,1,30\n25,sim,2,34\n25,sim,3,32\n\
+         25,random,1,38\n50,sim,1,28\n",
+    )
+    .unwrap();
+    let png = dir.path().join("plot.png");
+    let run = |log_y: bool| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+        cmd.args(["train", "plot", "--x", "frames", "--y", "mean_px"])
+            .args(["--series", "start"])
+            .arg("--csv")
+            .arg(&csv)
+            .arg("--out")
+            .arg(&png);
+        if log_y {
+            cmd.arg("--log-y");
+        }
+        cmd.output().expect("run jetpilot")
+    };
+    let stdout = ok(&run(false));
+    assert!(
+        stdout.contains("line \"sim\", x 25: mean 32.0 ± 2.0 (3 rows: 30, 34, 32)"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("2 line(s), 3 point(s) (the means of 5 rows)"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("x 50"), "one row there: {stdout}");
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (900, 560));
+    let out = run(true);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("drop --log-y"), "{err}");
+}
+
+#[test]
 fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     // Issue 12, item 3: a recording with poses and no track file is the road
     // (`sim.road = "path"`); `eval` and `train ddpg --sim` run on it unchanged. Here 40 s of
