@@ -9,15 +9,21 @@
 #       INIT.onnx: the sim-pretrained xy model (e.g. .cache/s2r/matched/il/best.onnx);
 #       "-" with STARTS=random
 #
-# Env: FRAMES (default "25 50 100 all"), IMAGES (training images per run, default 3000:
-# epochs = IMAGES / N, at least 10), STARTS (default "sim random"), INPUT_SIZE (the
+# Env: FRAMES (default "25 50 100 all"), IMAGES (real training images per run, default
+# 3000: epochs = IMAGES / N, at least 10), STARTS (default "sim random"; `sim_mix` and
+# `random_mix` also mix the folders of MIX, sim frames say, into every epoch with
+# `train il --mix`, as MIX_SHARE of its images, default 0.5), INPUT_SIZE (the
 # network's input, default 96), BIN (skip the build), CFG (default config/sim.toml), IL_ARGS
 # (more `train il` flags for every run, e.g. "--shift 0.25"), SEEDS (`train il --seed` of
 # each run, default "$SEED", else 1; several, e.g. "1 2 3", repeat every run per seed).
-# Writes OUT/finetune.csv (one row per run) and OUT/finetune.png (mean error against N, one
-# line per start: the seeds' mean in a band of their sd), OUT/<start>_<N>/ (one seed) or
-# OUT/<start>_<N>_s<seed>/ (several). CSVs of separate runs of this script (other seeds)
-# can be concatenated and drawn the same way with `jetpilot train plot`.
+# Each run is scored twice: its last epoch (last.onnx: a fixed budget of IMAGES) and the
+# epoch `train il` picked as best (best.onnx: the lowest loss on its 10 % held out, 2 to 25
+# near-duplicates of training frames here, so a noisy pick). Writes OUT/finetune.csv (one
+# row per run: last_px, best_px), OUT/finetune.png (the last epochs' mean error against N,
+# one line per start: the seeds' mean in a band of their sd), OUT/finetune_best.png (the
+# same for the picked epochs), OUT/<start>_<N>/ (one seed) or OUT/<start>_<N>_s<seed>/
+# (several). CSVs of separate runs of this script (other seeds) can be concatenated and
+# drawn the same way with `jetpilot train plot`.
 # The real frames are linked, not copied, into OUT.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,7 +36,7 @@ IMAGES=${IMAGES:-3000}
 STARTS=${STARTS:-sim random}
 SEEDS=${SEEDS:-${SEED:-1}}
 INPUT_SIZE=${INPUT_SIZE:-96}
-if [ "$INIT" = - ] && [[ " $STARTS " != *" sim "* ]]; then
+if [ "$INIT" = - ] && [[ " $STARTS " != *" sim"* ]]; then
   INIT=/dev/null
 fi
 if [ -z "$REAL" ] || [ ! -d "$REAL" ] || [ -z "$INIT" ] || [ ! -e "$INIT" ]; then
@@ -62,8 +68,10 @@ TOTAL=$(wc -l < "$OUT/by_time.txt")
 TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the latest ~20 %
 echo "real frames: $TOTAL, the earliest $TRAIN to train on, the rest scored"
 
-echo "frames,start,seed,mean_px,baseline_px,epochs" > "$OUT/finetune.csv"
+echo "frames,start,seed,last_px,best_px,baseline_px,epochs" > "$OUT/finetune.csv"
 read -r -a seeds <<< "$SEEDS"
+# The mean error of `score`'s "model" or "baseline" line in a score.txt.
+mean() { awk -v w="$1" '$1 == w && $2 == "mean" { print $3 }' "$2"; }
 for n in $FRAMES; do
   [ "$n" = all ] && n=$TRAIN
   d="$OUT/frames_$n"
@@ -80,22 +88,33 @@ for n in $FRAMES; do
       r="$OUT/${start}_$n"
       [ "${#seeds[@]}" -gt 1 ] && r="${r}_s$seed"
       rm -rf "$r"
-      init=()
-      [ "$start" = sim ] && init=(--init "$INIT")
+      start_args=()
+      [[ "$start" = sim* ]] && start_args=(--init "$INIT")
+      if [[ "$start" = *_mix ]]; then
+        [ -n "${MIX:-}" ] || { echo "STARTS has $start: set MIX to the folders to mix in" >&2; exit 2; }
+        for m in $MIX; do start_args+=(--mix "$m"); done
+        start_args+=(--mix-share "${MIX_SHARE:-0.5}")
+      fi
       echo "== $start start, $got real frames, $epochs epochs, seed $seed"
       # shellcheck disable=SC2086 # IL_ARGS is a list of words
       "$B" train il --config "${CFG:-config/sim.toml}" --input-size "$INPUT_SIZE" --head xy \
-        --epochs "$epochs" --seed "$seed" "${init[@]}" ${IL_ARGS:-} --data "$d" --out "$r" \
+        --epochs "$epochs" --seed "$seed" "${start_args[@]}" ${IL_ARGS:-} --data "$d" --out "$r" \
         > "$r.log" 2>&1
-      "$B" score --model "$r/best.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
-        > "$r/score.txt"
-      mean=$(awk '$1 == "model" && $2 == "mean" { print $3 }' "$r/score.txt")
-      base=$(awk '$1 == "baseline" && $2 == "mean" { print $3 }' "$r/score.txt")
-      echo "   mean error $mean px (baseline $base px)"
-      echo "$got,$start,$seed,$mean,$base,$epochs" >> "$OUT/finetune.csv"
+      for ckpt in last best; do
+        "$B" score --model "$r/$ckpt.onnx" --data "$REAL" --split-by-time 0.2 \
+          --out "$r/score_$ckpt" > "$r/score_$ckpt.txt"
+      done
+      last=$(mean model "$r/score_last.txt")
+      best=$(mean model "$r/score_best.txt")
+      base=$(mean baseline "$r/score_last.txt")
+      echo "   mean error: last epoch $last px, picked epoch $best px (baseline $base px)"
+      echo "$got,$start,$seed,$last,$best,$base,$epochs" >> "$OUT/finetune.csv"
     done
   done
 done
-"$B" train plot --csv "$OUT/finetune.csv" --x frames --y mean_px --series start \
-  --title "real frames: mean error against training frames" --out "$OUT/finetune.png"
+"$B" train plot --csv "$OUT/finetune.csv" --x frames --y last_px --series start \
+  --title "real frames: mean error against training frames (last epoch)" --out "$OUT/finetune.png"
+"$B" train plot --csv "$OUT/finetune.csv" --x frames --y best_px --series start \
+  --title "real frames: mean error against training frames (picked epoch)" \
+  --out "$OUT/finetune_best.png"
 cat "$OUT/finetune.csv"

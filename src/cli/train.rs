@@ -127,6 +127,13 @@ pub struct IlArgs {
     /// (0: off, JetBot's notebook; 0.25: up to a quarter of the frame).
     #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
     shift: f32,
+    /// Frames mixed into every epoch (repeat for several folders): sim demonstrations while
+    /// fine-tuning on real frames, say. Never held out: the best epoch is picked on --data.
+    #[arg(long, value_name = "DIR")]
+    mix: Vec<PathBuf>,
+    /// The --mix frames' share of each epoch's images (0.5: as many as --data's).
+    #[arg(long, default_value_t = 0.5, value_name = "FRACTION")]
+    mix_share: f32,
     /// Continue after the last finished epoch in --out (last.onnx and Adam's state
     /// il_optim.bpk).
     #[arg(long)]
@@ -191,7 +198,10 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
             .unwrap_or(2)
     });
     let t0 = std::time::Instant::now();
-    let dataset = data::load(&args.data, &contract, &labels, threads)?;
+    let mut dataset = data::load(&args.data, &contract, &labels, threads)?;
+    if !args.mix.is_empty() {
+        dataset.mix_in(data::load(&args.mix, &contract, &labels, threads)?)?;
+    }
     const SHOWN: usize = 20;
     for w in dataset.warnings.iter().take(SHOWN) {
         tracing::warn!("{w}");
@@ -200,7 +210,8 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         tracing::warn!("... and {} more warnings", dataset.warnings.len() - SHOWN);
     }
     tracing::info!(
-        samples = dataset.samples.len(),
+        samples = dataset.own(),
+        mixed_in = dataset.samples.len() - dataset.own(),
         size = contract.input_size,
         output = contract.output.as_str(),
         seconds = format!("{:.1}", t0.elapsed().as_secs_f64()),
@@ -220,6 +231,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         opts.augment = Augment::NONE;
     }
     opts.augment.shift = args.shift;
+    opts.mix_share = args.mix_share;
     let report = il::train(&dataset, &opts, |e| {
         tracing::info!(
             epoch = e.epoch,
@@ -241,6 +253,15 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         report.state.best_epoch,
         report.best_path.display()
     );
+    if report.mixed_pool > 0 {
+        println!(
+            "mixed in: {} frames an epoch from {} (--mix, {:.0} % of each epoch's images)",
+            report.mixed_per_epoch,
+            report.mixed_pool,
+            100.0 * report.mixed_per_epoch as f64
+                / (report.mixed_per_epoch + report.train_samples).max(1) as f64
+        );
+    }
     println!(
         "log: {}  curve: {}",
         il::csv_path(&args.out).display(),

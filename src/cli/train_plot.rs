@@ -107,7 +107,9 @@ struct Aggregated {
 /// Groups `(line, x, y)` rows into lines (in order of first appearance) and, within a line,
 /// rows of the same x into one point: their mean and sample sd (0 for one row), x ascending.
 fn aggregate(points: Vec<(String, f64, f64)>) -> Vec<(String, Vec<Aggregated>)> {
-    let mut lines: Vec<(String, Vec<(f64, Vec<f64>)>)> = Vec::new();
+    /// A line's name and its rows' y values by x, in order of first appearance.
+    type Rows = (String, Vec<(f64, Vec<f64>)>);
+    let mut lines: Vec<Rows> = Vec::new();
     for (group, x, y) in points {
         let i = match lines.iter().position(|(name, _)| *name == group) {
             Some(i) => i,

@@ -45,6 +45,9 @@ pub struct Dataset {
     pub warnings: Vec<String>,
     /// Images listed but not read (empty, truncated, missing): each has a warning.
     pub skipped: usize,
+    /// `samples[mixed_from..]` are extra frames mixed into training (`train il --mix`, see
+    /// [`Dataset::mix_in`]); `samples.len()` when there are none.
+    pub mixed_from: usize,
 }
 
 impl Dataset {
@@ -64,7 +67,35 @@ impl Dataset {
                 .collect(),
             warnings: Vec::new(),
             skipped: 0,
+            mixed_from: n,
         }
+    }
+
+    /// The frames that are this data set's own (split into train and test): all but the
+    /// mixed-in ones.
+    pub fn own(&self) -> usize {
+        self.mixed_from.min(self.samples.len())
+    }
+
+    /// Appends `extra`'s frames (all of them) as mixed-in ones: they are never held out for the test loss
+    /// (the best epoch is picked on this data set's own frames), and each epoch draws them
+    /// anew as a share of its images (`train il --mix-share`). Their warnings and skipped
+    /// count join this set's. Both must be decoded at the same input size.
+    pub fn mix_in(&mut self, extra: Dataset) -> Result<(), TrainError> {
+        if extra.size != self.size {
+            return Err(TrainError::Data {
+                path: "--mix".into(),
+                reason: format!(
+                    "mixed-in frames are {0}x{0}, the demonstrations {1}x{1}",
+                    extra.size, self.size
+                ),
+            });
+        }
+        self.mixed_from = self.own();
+        self.samples.extend(extra.samples);
+        self.warnings.extend(extra.warnings);
+        self.skipped += extra.skipped;
+        Ok(())
     }
 }
 
@@ -143,6 +174,7 @@ pub fn load(
     }
     Ok(Dataset {
         size: contract.input_size,
+        mixed_from: samples.len(),
         samples,
         warnings,
         skipped,
@@ -199,6 +231,23 @@ pub fn split(n: usize, test_fraction: f32, seed: u64) -> (Vec<usize>, Vec<usize>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mixed_in_frames_follow_the_own_ones_and_keep_their_count() {
+        let mut d = Dataset::random(8, 5, 1);
+        assert_eq!((d.own(), d.samples.len()), (5, 5));
+        let extra = Dataset::random(8, 3, 2);
+        let first_extra = extra.samples[0].clone();
+        d.mix_in(extra).unwrap();
+        assert_eq!((d.own(), d.samples.len()), (5, 8));
+        assert_eq!(d.samples[5], first_extra);
+        // A second folder adds to the mixed-in frames; the own ones stay 5.
+        d.mix_in(Dataset::random(8, 2, 3)).unwrap();
+        assert_eq!((d.own(), d.samples.len()), (5, 10));
+        let err = d.mix_in(Dataset::random(16, 2, 4)).unwrap_err().to_string();
+        assert!(err.contains("16x16") && err.contains("8x8"), "{err}");
+        assert_eq!(d.samples.len(), 10, "nothing added on an error");
+    }
     use crate::dataset::tub::{DriveMode, TubRecord};
     use crate::policy::OutputKind;
 

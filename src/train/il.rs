@@ -13,6 +13,12 @@
 //!    `best.onnx` when the test loss is the best so far, then `il_state.json` (written
 //!    last: a run killed before it resumes from the previous epoch).
 //!
+//! Mixed-in frames (`--mix DIR`, sim frames while fine-tuning on real ones, say) join step
+//! 1: each epoch adds `round(share / (1 - share) * train)` of them to its `train` own
+//! frames, so they are `share` of its images, drawn in a seeded shuffle that goes on from
+//! epoch to epoch (all are used before any repeats). They are never in the test split: the
+//! best epoch is picked on the data set's own frames.
+//!
 //! `--resume` continues after the last finished epoch from `last.onnx` and `il_optim.bpk`.
 //! burn keys optimiser state by parameter id, and a model reloaded from ONNX gets new ids,
 //! so `il_state.json` keeps the ids in visiting order and the reloaded model takes them
@@ -52,6 +58,9 @@ pub struct IlOptions {
     pub test_fraction: f32,
     pub seed: u64,
     pub augment: Augment,
+    /// Share of each epoch's images drawn from the mixed-in frames (`Dataset::mix_in`),
+    /// 0..1; unused without them.
+    pub mix_share: f32,
     pub resume: bool,
     pub progress: bool,
     /// Where the network trains (see [`TrainDevice`]).
@@ -72,6 +81,7 @@ impl IlOptions {
             test_fraction: 0.1,
             seed: 0,
             augment: Augment::JETBOT,
+            mix_share: 0.5,
             resume: false,
             device: TrainDevice::Flex,
             progress: true,
@@ -111,6 +121,9 @@ pub struct IlReport {
     pub last: Option<EpochStats>,
     pub train_samples: usize,
     pub test_samples: usize,
+    /// Mixed-in frames each epoch drew, and the pool they came from.
+    pub mixed_per_epoch: usize,
+    pub mixed_pool: usize,
     pub best_path: PathBuf,
     /// Set when the PNG curve was drawn without text (no font found).
     pub plot_warning: Option<String>,
@@ -331,6 +344,40 @@ pub fn evaluate(
     Ok(if n == 0 { f64::NAN } else { sum / n as f64 })
 }
 
+/// How many mixed-in frames an epoch with `own` training frames adds so that they are
+/// `share` of its images: `round(share / (1 - share) * own)`; none for no share.
+pub fn mixed_per_epoch(own: usize, share: f32) -> usize {
+    if share <= 0.0 || own == 0 {
+        return 0;
+    }
+    (f64::from(share) / (1.0 - f64::from(share)) * own as f64).round() as usize
+}
+
+/// The mixed-in frames of `epoch` (1-based): `k` indices out of `mixed`, taken in turn from
+/// a seeded shuffle of the pool repeated end to end (a new shuffle each pass), so epoch
+/// `e` takes the pool's `k (e - 1) .. k e`-th draws: every frame once before any twice.
+pub fn mixed_for_epoch(mixed: &[usize], k: usize, seed: u64, epoch: usize) -> Vec<usize> {
+    if mixed.is_empty() || k == 0 {
+        return Vec::new();
+    }
+    let n = mixed.len();
+    let first = k * epoch.saturating_sub(1);
+    let mut out = Vec::with_capacity(k);
+    let mut pass = usize::MAX;
+    let mut order: Vec<usize> = Vec::new();
+    for draw in first..first + k {
+        if draw / n != pass {
+            pass = draw / n;
+            order = mixed.to_vec();
+            order.shuffle(&mut ChaCha8Rng::seed_from_u64(
+                seed ^ 0x6D69_7865_645F_696E ^ (pass as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            ));
+        }
+        out.push(order[draw % n]);
+    }
+    out
+}
+
 /// Batches of one epoch: the seeded shuffle, cut into `batch`-sized pieces (a last piece of
 /// one image is dropped: BatchNorm needs two).
 pub fn epoch_batches(train: &[usize], batch: usize, seed: u64, epoch: usize) -> Vec<Vec<usize>> {
@@ -393,7 +440,16 @@ pub fn raw_throughput(
 
 /// A shift moves JetBot's xy target with the picture; a (speed, steering) label does not
 /// move with it, so the shift is refused there.
-fn check_shift(opts: &IlOptions) -> Result<(), TrainError> {
+fn check_options(opts: &IlOptions) -> Result<(), TrainError> {
+    if !(0.0..1.0).contains(&opts.mix_share) {
+        return Err(TrainError::Data {
+            path: opts.out.display().to_string(),
+            reason: format!(
+                "--mix-share must be in 0..1 (the mixed-in frames' share of each epoch), got {}",
+                opts.mix_share
+            ),
+        });
+    }
     let shift = opts.augment.shift;
     if !(0.0..=0.5).contains(&shift) {
         return Err(TrainError::Data {
@@ -419,22 +475,28 @@ pub fn train(
     opts: &IlOptions,
     mut on_epoch: impl FnMut(&EpochStats),
 ) -> Result<IlReport, TrainError> {
-    check_shift(opts)?;
+    check_options(opts)?;
     let device = opts.device.open()?.autodiff();
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
     let (mut model, mut state) = initial_model(opts, &device)?;
-    state.samples = data.samples.len();
-    let (train_idx, test_idx) = split(data.samples.len(), opts.test_fraction, opts.seed);
+    let own = data.own();
+    state.samples = own;
+    let (train_idx, test_idx) = split(own, opts.test_fraction, opts.seed);
     if train_idx.len() < 2 {
         return Err(TrainError::Data {
             path: opts.out.display().to_string(),
             reason: format!(
-                "{} demonstrations leave {} for training; at least 2 are needed",
-                data.samples.len(),
+                "{own} demonstrations leave {} for training; at least 2 are needed",
                 train_idx.len()
             ),
         });
     }
+    let mixed: Vec<usize> = (own..data.samples.len()).collect();
+    let per_epoch = if mixed.is_empty() {
+        0
+    } else {
+        mixed_per_epoch(train_idx.len(), opts.mix_share)
+    };
     let resuming = state.epochs_done > 0;
     let mut log = CsvLog::open(&csv_path(&opts.out), &CSV_HEADER, resuming)?;
     let (resumed, mut optim) = resumed_optim(model, &state, &opts.out)?;
@@ -448,7 +510,9 @@ pub fn train(
 
     for epoch in state.epochs_done + 1..=opts.epochs {
         let t0 = Instant::now();
-        let batches = epoch_batches(&train_idx, opts.batch, opts.seed, epoch);
+        let mut epoch_idx = train_idx.clone();
+        epoch_idx.extend(mixed_for_epoch(&mixed, per_epoch, opts.seed, epoch));
+        let batches = epoch_batches(&epoch_idx, opts.batch, opts.seed, epoch);
         let images: usize = batches.iter().map(Vec::len).sum();
         let bar = progress_bar(opts.progress, batches.len() as u64, epoch, opts.epochs);
         let (tx, rx) = sync_channel::<Batch>(2);
@@ -541,6 +605,8 @@ pub fn train(
         last,
         train_samples: train_idx.len(),
         test_samples: test_idx.len(),
+        mixed_per_epoch: per_epoch,
+        mixed_pool: mixed.len(),
         best_path: best_path(&opts.out),
         plot_warning,
     })
@@ -583,6 +649,44 @@ mod tests {
     use super::*;
 
     #[test]
+    fn mixed_frames_are_their_share_of_an_epoch() {
+        // share 0.5: as many as the own frames; 0.25: a third of them (0.25 / 0.75).
+        assert_eq!(mixed_per_epoch(22, 0.5), 22);
+        assert_eq!(mixed_per_epoch(222, 0.25), 74);
+        assert_eq!(mixed_per_epoch(9, 0.1), 1);
+        assert_eq!(mixed_per_epoch(100, 0.0), 0);
+        assert_eq!(mixed_per_epoch(0, 0.5), 0);
+    }
+
+    #[test]
+    fn mixed_frames_go_on_through_the_pool_and_use_each_once_before_any_twice() {
+        let pool: Vec<usize> = (100..110).collect();
+        // 4 an epoch from 10: epochs 1 and 2 take 8 different frames, epoch 3 the last two
+        // of the first pass and two of the second.
+        let e1 = mixed_for_epoch(&pool, 4, 7, 1);
+        let e2 = mixed_for_epoch(&pool, 4, 7, 2);
+        let e3 = mixed_for_epoch(&pool, 4, 7, 3);
+        assert_eq!((e1.len(), e2.len(), e3.len()), (4, 4, 4));
+        let mut first_pass: Vec<usize> = e1.iter().chain(&e2).chain(&e3[..2]).copied().collect();
+        first_pass.sort_unstable();
+        assert_eq!(first_pass, pool, "the first 10 draws are the pool once");
+        assert_eq!(e1, mixed_for_epoch(&pool, 4, 7, 1), "seeded");
+        assert_ne!(
+            e1,
+            mixed_for_epoch(&pool, 4, 8, 1),
+            "another seed, another order"
+        );
+        // More an epoch than the pool holds: every frame at least once, none 3 times in 12.
+        let big = mixed_for_epoch(&pool, 12, 7, 1);
+        for f in &pool {
+            let n = big.iter().filter(|&&g| g == *f).count();
+            assert!((1..=2).contains(&n), "{f} drawn {n} times: {big:?}");
+        }
+        assert!(mixed_for_epoch(&[], 4, 7, 1).is_empty());
+        assert!(mixed_for_epoch(&pool, 0, 7, 1).is_empty());
+    }
+
+    #[test]
     fn epoch_batches_cover_the_training_set_once_and_are_seeded() {
         let train: Vec<usize> = (0..10).collect();
         let b = epoch_batches(&train, 4, 3, 1);
@@ -611,15 +715,15 @@ mod tests {
             o.augment.shift = shift;
             o
         };
-        let err = check_shift(&opts(OutputKind::SpeedSteering, 0.2)).unwrap_err();
+        let err = check_options(&opts(OutputKind::SpeedSteering, 0.2)).unwrap_err();
         assert!(err.to_string().contains("speed_steering head"), "{err}");
-        let err = check_shift(&opts(OutputKind::Xy, 0.7)).unwrap_err();
+        let err = check_options(&opts(OutputKind::Xy, 0.7)).unwrap_err();
         assert!(
             err.to_string().contains("--shift must be in 0..0.5"),
             "{err}"
         );
-        check_shift(&opts(OutputKind::Xy, 0.25)).unwrap();
-        check_shift(&opts(OutputKind::SpeedSteering, 0.0)).unwrap();
+        check_options(&opts(OutputKind::Xy, 0.25)).unwrap();
+        check_options(&opts(OutputKind::SpeedSteering, 0.0)).unwrap();
     }
 
     #[test]

@@ -469,6 +469,68 @@ fn ddpg_removes_the_interventions_of_a_biased_policy() {
     assert_eq!(best.outcome.interventions, 0, "{:?}", report.evals);
 }
 
+/// `n` grey 224x224 JetBot xy frames, labelled (50 + 3 i, 60) px, in `dir`.
+fn xy_frames(dir: &Path, n: usize, grey: u8) -> PathBuf {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut jpeg = Vec::new();
+    jetpilot::dataset::encode_jpeg(&vec![grey; 224 * 224 * 3], 224, 224, &mut jpeg).unwrap();
+    for i in 0..n {
+        let id = format!("{grey}-{i}");
+        jetpilot::dataset::jetbot_xy::write_sample(dir, 50 + 3 * i as u32, 60, &jpeg, &id).unwrap();
+    }
+    dir.to_path_buf()
+}
+
+#[test]
+fn imitation_learning_mixes_extra_frames_into_every_epoch_but_not_into_the_test_split() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let own = xy_frames(&dir.path().join("real"), 12, 90);
+    let mix = xy_frames(&dir.path().join("sim"), 30, 160);
+    let out = dir.path().join("il");
+    let run = |share: &str| {
+        let args = [
+            "train",
+            "il",
+            "--batch",
+            "8",
+            "--seed",
+            "3",
+            "--epochs",
+            "2",
+            "--head",
+            "xy",
+            "--mix-share",
+            share,
+        ];
+        let paths: [&Path; 8] = [
+            Path::new("--config"),
+            &cfg,
+            Path::new("--data"),
+            &own,
+            Path::new("--mix"),
+            &mix,
+            Path::new("--out"),
+            &out,
+        ];
+        jetpilot(&args, &paths)
+    };
+    let stdout = ok(&run("0.25"));
+    // 12 own frames: 11 train, 1 test; the 30 mixed-in ones are never held out.
+    // A share of 0.25: round(0.25 / 0.75 * 11) = 4 an epoch, 4 of 15 images.
+    assert!(stdout.contains("on 11 train / 1 test frames"), "{stdout}");
+    assert!(
+        stdout.contains("mixed in: 4 frames an epoch from 30 (--mix, 27 % of each epoch's images)"),
+        "{stdout}"
+    );
+    assert_eq!(csv_rows(&out.join("il_log.csv")).len(), 2);
+    // A share of 1 would leave no room for the own frames.
+    let bad = run("1");
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("--mix-share must be in 0..1"), "{err}");
+}
+
 #[test]
 fn train_plot_draws_one_line_per_series_and_names_a_missing_column() {
     let dir = tempfile::tempdir().unwrap();
