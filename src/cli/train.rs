@@ -173,6 +173,9 @@ pub fn config(path: Option<&PathBuf>) -> anyhow::Result<Config> {
     }
 }
 
+/// Fewer held-out frames than this make `best.onnx` a noisy pick (`train il` warns).
+const FEW_HELD_OUT: usize = 25;
+
 fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     let cfg = config(args.config.as_ref())?;
     let mut contract: ModelContract = cfg.model.fallback_contract();
@@ -253,6 +256,13 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         report.state.best_epoch,
         report.best_path.display()
     );
+    if (1..FEW_HELD_OUT).contains(&report.test_samples) {
+        tracing::warn!(
+            "best.onnx is the epoch with the lowest loss on only {} held-out frame(s), a noisy pick; \
+             last.onnx is the whole budget's result (README: \"Seeds, the picked epoch\")",
+            report.test_samples
+        );
+    }
     if report.mixed_pool > 0 {
         println!(
             "mixed in: {} frames an epoch from {} (--mix, {:.0} % of each epoch's images)",

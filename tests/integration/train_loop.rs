@@ -515,7 +515,8 @@ fn imitation_learning_mixes_extra_frames_into_every_epoch_but_not_into_the_test_
         ];
         jetpilot(&args, &paths)
     };
-    let stdout = ok(&run("0.25"));
+    let first = run("0.25");
+    let stdout = ok(&first);
     // 12 own frames: 11 train, 1 test; the 30 mixed-in ones are never held out.
     // A share of 0.25: round(0.25 / 0.75 * 11) = 4 an epoch, 4 of 15 images.
     assert!(stdout.contains("on 11 train / 1 test frames"), "{stdout}");
@@ -524,6 +525,11 @@ fn imitation_learning_mixes_extra_frames_into_every_epoch_but_not_into_the_test_
         "{stdout}"
     );
     assert_eq!(csv_rows(&out.join("il_log.csv")).len(), 2);
+    let err = String::from_utf8_lossy(&first.stderr);
+    assert!(
+        err.contains("lowest loss on only 1 held-out frame(s), a noisy pick"),
+        "{err}"
+    );
     // A share of 1 would leave no room for the own frames.
     let bad = run("1");
     assert!(!bad.status.success());
