@@ -11,19 +11,20 @@
 #
 # Env: FRAMES (default "25 50 100 all"), IMAGES (real training images per run, default
 # 3000: epochs = IMAGES / N, at least 10), STARTS (default "sim random"; `sim_mix` and
-# `random_mix` also mix the folders of MIX, sim frames say, into every epoch with
-# `train il --mix`, as MIX_SHARE of its images, default 0.5), INPUT_SIZE (the
+# `random_mix` also mix the folders of MIX (space-separated, relative to the repository),
+# sim frames say, into every epoch with `train il --mix`, as MIX_SHARE of its images,
+# default 0.5: such a run takes 1 / (1 - MIX_SHARE) times the steps), INPUT_SIZE (the
 # network's input, default 96), BIN (skip the build), CFG (default config/sim.toml), IL_ARGS
 # (more `train il` flags for every run, e.g. "--shift 0.25"), SEEDS (`train il --seed` of
 # each run, default "$SEED", else 1; several, e.g. "1 2 3", repeat every run per seed).
 # Each run is scored twice: its last epoch (last.onnx: a fixed budget of IMAGES) and the
-# epoch `train il` picked as best (best.onnx: the lowest loss on its 10 % held out, 2 to 25
+# epoch `train il` picked as best (best.onnx: the lowest loss on its 10 % held out, 3 to 25
 # near-duplicates of training frames here, so a noisy pick). Writes OUT/finetune.csv (one
 # row per run: last_px, best_px), OUT/finetune.png (the last epochs' mean error against N,
 # one line per start: the seeds' mean in a band of their sd), OUT/finetune_best.png (the
 # same for the picked epochs), OUT/<start>_<N>/ (one seed) or OUT/<start>_<N>_s<seed>/
-# (several). CSVs of separate runs of this script (other seeds) can be concatenated and
-# drawn the same way with `jetpilot train plot`.
+# (several). The CSVs of runs into separate OUTs (other seeds, say) can be appended with
+# `cat` and drawn the same way with `jetpilot train plot` (it skips repeated headers).
 # The real frames are linked, not copied, into OUT.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -44,6 +45,15 @@ if [ -z "$REAL" ] || [ ! -d "$REAL" ] || [ -z "$INIT" ] || [ ! -e "$INIT" ]; the
   echo "labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat) and INIT.onnx a model;" >&2
   echo "got '${REAL}' and '${INIT}'" >&2
   exit 2
+fi
+if [[ " $STARTS " = *_mix" "* ]]; then
+  if [ -z "${MIX:-}" ]; then
+    echo "STARTS has a *_mix start: set MIX to the folders to mix in (space-separated)" >&2
+    exit 2
+  fi
+  for m in $MIX; do
+    [ -d "$m" ] || { echo "MIX: no folder $m (paths are relative to the repository)" >&2; exit 2; }
+  done
 fi
 REAL=$(cd "$REAL" && pwd)
 INIT=$(cd "$(dirname "$INIT")" && pwd)/$(basename "$INIT")
@@ -91,7 +101,6 @@ for n in $FRAMES; do
       start_args=()
       [[ "$start" = sim* ]] && start_args=(--init "$INIT")
       if [[ "$start" = *_mix ]]; then
-        [ -n "${MIX:-}" ] || { echo "STARTS has $start: set MIX to the folders to mix in" >&2; exit 2; }
         for m in $MIX; do start_args+=(--mix "$m"); done
         start_args+=(--mix-share "${MIX_SHARE:-0.5}")
       fi

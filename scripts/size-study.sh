@@ -91,7 +91,7 @@ for s in $SIZES; do
   done
   if [ -n "$REAL" ]; then
     r="$OUT/real_$s"
-    if ! ls "$r"/random_*/score.txt > /dev/null 2>&1; then
+    if ! ls "$r"/random_*/score_best.txt > /dev/null 2>&1; then
       FRAMES=all STARTS=random INPUT_SIZE=$s BIN=$B scripts/real-finetune.sh "$REAL" - "$r" \
         > "$OUT/real_$s.log" 2>&1
       rm -f "$r"/random_*/il_optim.bpk
@@ -106,7 +106,7 @@ for s in $SIZES; do
         echo "real int8 $s: refused or failed, see $OUT/quantize_real_$s.log"
       fi
     fi
-    for f in "$r"/random_*/score.txt "$r/score_int8.txt"; do
+    for f in "$r"/random_*/score_best.txt "$r/score_int8.txt"; do
       [ -f "$f" ] || continue
       echo "real $s $f: $(awk '$1 == "model" && $2 == "mean"' "$f") $(grep 'model / baseline' "$f")"
     done

@@ -131,9 +131,10 @@ pub struct IlArgs {
     /// fine-tuning on real frames, say. Never held out: the best epoch is picked on --data.
     #[arg(long, value_name = "DIR")]
     mix: Vec<PathBuf>,
-    /// The --mix frames' share of each epoch's images (0.5: as many as --data's).
-    #[arg(long, default_value_t = 0.5, value_name = "FRACTION")]
-    mix_share: f32,
+    /// The --mix frames' share of each epoch's images, 0..0.95 (default 0.5: as many as
+    /// --data's training frames).
+    #[arg(long, value_name = "FRACTION")]
+    mix_share: Option<f32>,
     /// Continue after the last finished epoch in --out (last.onnx and Adam's state
     /// il_optim.bpk).
     #[arg(long)]
@@ -201,9 +202,20 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
             .unwrap_or(2)
     });
     let t0 = std::time::Instant::now();
+    let mix_share = args.mix_share.unwrap_or(0.5);
+    if !(0.0..=il::MAX_MIX_SHARE).contains(&mix_share) {
+        anyhow::bail!(
+            "--mix-share must be in 0..{} (the --mix frames' share of each epoch), got {mix_share}",
+            il::MAX_MIX_SHARE
+        );
+    }
+    if args.mix.is_empty() && args.mix_share.is_some() {
+        tracing::warn!("--mix-share without --mix: there is nothing to mix in");
+    }
     let mut dataset = data::load(&args.data, &contract, &labels, threads)?;
     if !args.mix.is_empty() {
-        dataset.mix_in(data::load(&args.mix, &contract, &labels, threads)?)?;
+        let mix = data::load(&args.mix, &contract, &labels, threads).context("--mix")?;
+        dataset.mix_in(mix)?;
     }
     const SHOWN: usize = 20;
     for w in dataset.warnings.iter().take(SHOWN) {
@@ -234,7 +246,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         opts.augment = Augment::NONE;
     }
     opts.augment.shift = args.shift;
-    opts.mix_share = args.mix_share;
+    opts.mix_share = mix_share;
     let report = il::train(&dataset, &opts, |e| {
         tracing::info!(
             epoch = e.epoch,
@@ -256,7 +268,17 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         report.state.best_epoch,
         report.best_path.display()
     );
-    if (1..FEW_HELD_OUT).contains(&report.test_samples) {
+    if report.test_samples == 0 {
+        tracing::warn!(
+            "no frames held out (--test-fraction 0): best.onnx is the epoch with the lowest \
+             training loss{}",
+            if report.mixed_pool > 0 {
+                ", mixed-in frames included"
+            } else {
+                ""
+            }
+        );
+    } else if report.test_samples < FEW_HELD_OUT {
         tracing::warn!(
             "best.onnx is the epoch with the lowest loss on only {} held-out frame(s), a noisy pick; \
              last.onnx is the whole budget's result (README: \"Seeds, the picked epoch\")",

@@ -3,7 +3,8 @@
 //! number of real frames, say).
 //!
 //! Rows that repeat an x within a line (one per seed, say) are drawn as their mean, in a
-//! shaded band of the sample sd, and each such point is printed:
+//! shaded band of the sample sd (drawn where a line has two x or more), and each such point
+//! is printed; a row equal to the header (CSVs appended with `cat`) is skipped:
 //!
 //! ```text
 //! line "sim", x 25: mean 32.0 ± 2.0 (3 rows: 30, 32, 34)
@@ -66,6 +67,9 @@ fn read_points(args: &PlotArgs) -> anyhow::Result<Vec<(String, f64, f64)>> {
     let is = args.series.as_deref().map(column).transpose()?;
     let mut out = Vec::new();
     for (n, line) in lines {
+        if line.trim() == header.trim() {
+            continue; // another run's CSV appended with its header (`cat a.csv b.csv`)
+        }
         let cells: Vec<&str> = line.split(',').map(str::trim).collect();
         let cell = |i: usize, name: &str| {
             cells

@@ -231,6 +231,8 @@ pub fn split(n: usize, test_fraction: f32, seed: u64) -> (Vec<usize>, Vec<usize>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dataset::tub::{DriveMode, TubRecord};
+    use crate::policy::OutputKind;
 
     #[test]
     fn mixed_in_frames_follow_the_own_ones_and_keep_their_count() {
@@ -248,8 +250,6 @@ mod tests {
         assert!(err.contains("16x16") && err.contains("8x8"), "{err}");
         assert_eq!(d.samples.len(), 10, "nothing added on an error");
     }
-    use crate::dataset::tub::{DriveMode, TubRecord};
-    use crate::policy::OutputKind;
 
     fn map(output: OutputKind) -> LabelMap {
         LabelMap {

@@ -96,7 +96,13 @@ pub struct IlState {
     pub best_epoch: usize,
     pub best_test_loss: f64,
     pub seed: u64,
+    /// The data set's own frames (`--data`), and the mixed-in ones with their share
+    /// (`--mix`, `--mix-share`): a resumed run must be given the same.
     pub samples: usize,
+    #[serde(default)]
+    pub mixed: usize,
+    #[serde(default)]
+    pub mix_share: f32,
     pub seconds: f64,
     /// The model's parameter ids in visiting order when `il_optim.bpk` was written: Adam's
     /// state is keyed by them, and a model reloaded from `last.onnx` gets new ones.
@@ -267,6 +273,8 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState
         best_test_loss: f64::INFINITY,
         seed: opts.seed,
         samples: 0,
+        mixed: 0,
+        mix_share: 0.0,
         seconds: 0.0,
         param_ids: Vec::new(),
     };
@@ -278,14 +286,19 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState
     let model = match &opts.init {
         Some(path) => {
             let (model, _) = load_onnx(path, device)?;
-            if model.num_outputs() != 2 {
-                return Err(TrainError::TensorShape {
-                    name: format!("{}: fc.weight", path.display()),
-                    expected: "2 outputs".into(),
-                    found: format!("{} outputs", model.num_outputs()),
-                });
+            if model.num_outputs() == 2 {
+                model
+            } else {
+                // A classifier (torchvision's ImageNet ResNet-18: 1000): keep the backbone,
+                // a fresh 2-output head, as JetBot's notebook does.
+                tracing::info!(
+                    "{}: {} outputs; keeping its backbone with a fresh 2-output head",
+                    path.display(),
+                    model.num_outputs()
+                );
+                let weights = model.to_weights()?.with_fresh_head(2, opts.seed);
+                Resnet18::from_weights(&weights, device)?
             }
-            model
         }
         None => Resnet18::from_weights(&Resnet18Weights::random(2, opts.seed), device)?,
     };
@@ -344,6 +357,9 @@ pub fn evaluate(
     Ok(if n == 0 { f64::NAN } else { sum / n as f64 })
 }
 
+/// The largest `--mix-share`: 19 mixed-in frames to each own one.
+pub const MAX_MIX_SHARE: f32 = 0.95;
+
 /// How many mixed-in frames an epoch with `own` training frames adds so that they are
 /// `share` of its images: `round(share / (1 - share) * own)`; none for no share.
 pub fn mixed_per_epoch(own: usize, share: f32) -> usize {
@@ -376,6 +392,68 @@ pub fn mixed_for_epoch(mixed: &[usize], k: usize, seed: u64, epoch: usize) -> Ve
         out.push(order[draw % n]);
     }
     out
+}
+
+/// What `epoch` trains on: every own training frame, then `per_epoch` mixed-in ones
+/// ([`mixed_for_epoch`]); [`epoch_batches`] shuffles them together.
+pub fn epoch_indices(
+    train: &[usize],
+    mixed: &[usize],
+    per_epoch: usize,
+    seed: u64,
+    epoch: usize,
+) -> Vec<usize> {
+    let mut idx = train.to_vec();
+    idx.extend(mixed_for_epoch(mixed, per_epoch, seed, epoch));
+    idx
+}
+
+/// A resumed run must see what it started with: the same own frames (so the same split),
+/// mixed-in frames and share, and seed. Anything else would leak held-out frames into
+/// training or change the run halfway.
+fn check_resume(
+    saved: &IlState,
+    own: usize,
+    mixed: usize,
+    share: f32,
+    opts: &IlOptions,
+) -> Result<(), TrainError> {
+    let differs = |what: &str, was: String, now: String| TrainError::Data {
+        path: state_path(&opts.out).display().to_string(),
+        reason: format!(
+            "--resume: the run started with {what} {was}, now {now}; resume with the same \
+             --data, --mix, --mix-share and --seed, or start a new --out"
+        ),
+    };
+    if saved.samples != own {
+        return Err(differs(
+            "own frames (--data)",
+            saved.samples.to_string(),
+            own.to_string(),
+        ));
+    }
+    if saved.mixed != mixed {
+        return Err(differs(
+            "mixed-in frames (--mix)",
+            saved.mixed.to_string(),
+            mixed.to_string(),
+        ));
+    }
+    if mixed > 0 && saved.mix_share != share {
+        return Err(differs(
+            "--mix-share",
+            saved.mix_share.to_string(),
+            share.to_string(),
+        ));
+    }
+    if saved.seed != opts.seed {
+        return Err(differs(
+            "--seed",
+            saved.seed.to_string(),
+            opts.seed.to_string(),
+        ));
+    }
+    Ok(())
 }
 
 /// Batches of one epoch: the seeded shuffle, cut into `batch`-sized pieces (a last piece of
@@ -438,14 +516,17 @@ pub fn raw_throughput(
     Ok((steps * batch) as f64 / t0.elapsed().as_secs_f64().max(1e-9))
 }
 
-/// A shift moves JetBot's xy target with the picture; a (speed, steering) label does not
-/// move with it, so the shift is refused there.
+/// `--mix-share` in 0..[`MAX_MIX_SHARE`]; a shift moves JetBot's xy target with the
+/// picture, and a (speed, steering) label does not move with it, so the shift is refused
+/// there.
 fn check_options(opts: &IlOptions) -> Result<(), TrainError> {
-    if !(0.0..1.0).contains(&opts.mix_share) {
+    if !(0.0..=MAX_MIX_SHARE).contains(&opts.mix_share) {
         return Err(TrainError::Data {
             path: opts.out.display().to_string(),
             reason: format!(
-                "--mix-share must be in 0..1 (the mixed-in frames' share of each epoch), got {}",
+                "--mix-share must be in 0..{MAX_MIX_SHARE} (the mixed-in frames' share of each \
+                 epoch; {MAX_MIX_SHARE} is {} of them to each own frame), got {}",
+                mixed_per_epoch(1, MAX_MIX_SHARE),
                 opts.mix_share
             ),
         });
@@ -480,7 +561,16 @@ pub fn train(
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
     let (mut model, mut state) = initial_model(opts, &device)?;
     let own = data.own();
-    state.samples = own;
+    let mixed: Vec<usize> = (own..data.samples.len()).collect();
+    let share = if mixed.is_empty() {
+        0.0
+    } else {
+        opts.mix_share
+    };
+    if state.epochs_done > 0 {
+        check_resume(&state, own, mixed.len(), share, opts)?;
+    }
+    (state.samples, state.mixed, state.mix_share) = (own, mixed.len(), share);
     let (train_idx, test_idx) = split(own, opts.test_fraction, opts.seed);
     if train_idx.len() < 2 {
         return Err(TrainError::Data {
@@ -491,12 +581,7 @@ pub fn train(
             ),
         });
     }
-    let mixed: Vec<usize> = (own..data.samples.len()).collect();
-    let per_epoch = if mixed.is_empty() {
-        0
-    } else {
-        mixed_per_epoch(train_idx.len(), opts.mix_share)
-    };
+    let per_epoch = mixed_per_epoch(train_idx.len(), share);
     let resuming = state.epochs_done > 0;
     let mut log = CsvLog::open(&csv_path(&opts.out), &CSV_HEADER, resuming)?;
     let (resumed, mut optim) = resumed_optim(model, &state, &opts.out)?;
@@ -510,8 +595,7 @@ pub fn train(
 
     for epoch in state.epochs_done + 1..=opts.epochs {
         let t0 = Instant::now();
-        let mut epoch_idx = train_idx.clone();
-        epoch_idx.extend(mixed_for_epoch(&mixed, per_epoch, opts.seed, epoch));
+        let epoch_idx = epoch_indices(&train_idx, &mixed, per_epoch, opts.seed, epoch);
         let batches = epoch_batches(&epoch_idx, opts.batch, opts.seed, epoch);
         let images: usize = batches.iter().map(Vec::len).sum();
         let bar = progress_bar(opts.progress, batches.len() as u64, epoch, opts.epochs);
@@ -659,6 +743,17 @@ mod tests {
     }
 
     #[test]
+    fn an_epoch_trains_on_every_own_frame_and_its_share_of_mixed_ones() {
+        let train = [3, 1, 4];
+        let pool: Vec<usize> = (10..16).collect();
+        let idx = epoch_indices(&train, &pool, 2, 5, 2);
+        assert_eq!(&idx[..3], &train);
+        assert_eq!(&idx[3..], &mixed_for_epoch(&pool, 2, 5, 2)[..]);
+        assert!(idx[3..].iter().all(|i| pool.contains(i)));
+        assert_eq!(epoch_indices(&train, &[], 2, 5, 2), train);
+    }
+
+    #[test]
     fn mixed_frames_go_on_through_the_pool_and_use_each_once_before_any_twice() {
         let pool: Vec<usize> = (100..110).collect();
         // 4 an epoch from 10: epochs 1 and 2 take 8 different frames, epoch 3 the last two
@@ -724,12 +819,68 @@ mod tests {
         );
         check_options(&opts(OutputKind::Xy, 0.25)).unwrap();
         check_options(&opts(OutputKind::SpeedSteering, 0.0)).unwrap();
+        // --mix-share: up to 0.95, 19 mixed-in frames to each own one.
+        let share = |v: f32| IlOptions {
+            mix_share: v,
+            ..opts(OutputKind::Xy, 0.0)
+        };
+        check_options(&share(0.95)).unwrap();
+        let err = check_options(&share(0.96)).unwrap_err().to_string();
+        assert!(
+            err.contains("--mix-share must be in 0..0.95") && err.contains("19 of them"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_classifier_init_keeps_its_backbone_and_gets_a_two_output_head() {
+        let size = 32u32;
+        let data = Dataset::random(size, 8, 1);
+        let contract = ModelContract {
+            input_size: size,
+            output: OutputKind::Xy,
+            ..ModelContract::default()
+        };
+        let labels = LabelMap::new(OutputKind::Xy, &Default::default());
+        let dir = tempfile::tempdir().unwrap();
+        let opts = |out: &str| IlOptions {
+            epochs: 1,
+            batch: 4,
+            test_fraction: 0.25,
+            progress: false,
+            ..IlOptions::paper(dir.path().join(out), contract.clone(), labels)
+        };
+        // A 10-class "ImageNet" network: a trained backbone, a 10-output fc.
+        train(&data, &opts("a"), |_| {}).unwrap();
+        let device = TrainDevice::Flex.open().unwrap();
+        let (first, _) = load_onnx(&dir.path().join("a/last.onnx"), &device).unwrap();
+        let classifier = first.to_weights().unwrap().with_fresh_head(10, 1);
+        let init = dir.path().join("classifier.onnx");
+        super::super::export::write_weights(&classifier, &contract, &init).unwrap();
+        let mut from_classifier = opts("b");
+        from_classifier.init = Some(init);
+        let (model, _) = initial_model(&from_classifier, &device).unwrap();
+        let w = model.to_weights().unwrap();
+        assert_eq!(w.num_outputs().unwrap(), 2);
+        assert_eq!(
+            w.tensors["conv1.weight"],
+            classifier.tensors["conv1.weight"]
+        );
+        assert_eq!(
+            w.tensors["fc.bias"],
+            classifier.with_fresh_head(2, 0).tensors["fc.bias"]
+        );
+        train(&data, &from_classifier, |_| {}).unwrap();
+        let (trained, _) = load_onnx(&dir.path().join("b/last.onnx"), &device).unwrap();
+        assert_eq!(trained.num_outputs(), 2);
     }
 
     #[test]
     fn a_resumed_run_computes_what_an_unbroken_one_does() {
         let size = 32u32;
-        let data = Dataset::random(size, 12, 1);
+        // With mixed-in frames, so that their draws resume too.
+        let mut data = Dataset::random(size, 12, 1);
+        data.mix_in(Dataset::random(size, 6, 2)).unwrap();
         let contract = ModelContract {
             input_size: size,
             output: OutputKind::SpeedSteering,
@@ -771,6 +922,18 @@ mod tests {
         })
         .unwrap();
         assert_eq!(straight, broken, "the resumed run differs");
+        // Resuming without the mixed-in frames, or with another seed, is refused.
+        let own = Dataset::random(size, 12, 1);
+        let err = train(&own, &opts("b", 3, true), |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("mixed-in frames (--mix) 6, now 0"), "{err}");
+        let other_seed = IlOptions {
+            seed: 9,
+            ..opts("b", 3, true)
+        };
+        let err = train(&data, &other_seed, |_| {}).unwrap_err().to_string();
+        assert!(err.contains("--seed 0, now 9"), "{err}");
         let restarted = (reset[1].0 - straight[1].0).abs() / straight[1].0;
         assert!(
             restarted > 0.05,

@@ -108,6 +108,23 @@ impl Resnet18Weights {
         Self { tensors }
     }
 
+    /// The same backbone with a new `fc` of `num_outputs`: how JetBot's notebook turns an
+    /// ImageNet ResNet-18 (1000 outputs) into a target-point or steering network
+    /// (`model.fc = nn.Linear(512, 2)`). The new `fc.weight`, then `fc.bias`, are drawn
+    /// uniform in `±1/sqrt(512)` (PyTorch's `nn.Linear` default) from ChaCha8 seeded with
+    /// `seed`; every other tensor is kept as it is.
+    pub fn with_fresh_head(&self, num_outputs: usize, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let bound = 1.0 / (FC_IN as f32).sqrt();
+        let n = num_outputs as i64;
+        let weight = uniform(&mut rng, bound, num_outputs * FC_IN as usize);
+        let bias = uniform(&mut rng, bound, num_outputs);
+        let mut tensors = self.tensors.clone();
+        tensors.insert("fc.weight".into(), (vec![n, FC_IN], weight));
+        tensors.insert("fc.bias".into(), (vec![n], bias));
+        Self { tensors }
+    }
+
     /// `num_outputs` from the shape of `fc.weight` (`[N,512]`).
     pub fn num_outputs(&self) -> Result<usize, OnnxError> {
         let expected = "[N,512]".to_string();
@@ -302,6 +319,34 @@ mod tests {
             input_size: size,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn a_fresh_head_replaces_fc_only_and_is_seeded() {
+        let mut classifier = seed7().clone();
+        classifier
+            .tensors
+            .insert("fc.weight".into(), (vec![1000, 512], vec![0.5; 512_000]));
+        classifier
+            .tensors
+            .insert("fc.bias".into(), (vec![1000], vec![0.5; 1000]));
+        let xy = classifier.with_fresh_head(2, 3);
+        assert_eq!(xy.num_outputs().unwrap(), 2);
+        let (dims, w) = &xy.tensors["fc.weight"];
+        assert_eq!((dims.as_slice(), w.len()), (&[2i64, 512][..], 1024));
+        let bound = 1.0 / 512f32.sqrt(); // 0.0442
+        assert!(w.iter().all(|v| v.abs() <= bound) && w.iter().any(|v| *v != 0.0));
+        assert_eq!(xy.tensors["fc.bias"].0, vec![2]);
+        for (name, t) in &seed7().tensors {
+            if !name.starts_with("fc.") {
+                assert_eq!(&xy.tensors[name], t, "{name} kept");
+            }
+        }
+        assert_eq!(xy, classifier.with_fresh_head(2, 3), "seeded");
+        assert_ne!(
+            xy.tensors["fc.weight"],
+            classifier.with_fresh_head(2, 4).tensors["fc.weight"]
+        );
     }
 
     #[test]
