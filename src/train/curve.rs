@@ -657,6 +657,16 @@ struct Chart<'a> {
     scale: f64,
 }
 
+/// The title's size in points: 22, or less (down to 11) where the title, `width(size)`
+/// pixels wide, would not fit in `room` pixels. An unmeasurable title keeps its size.
+fn fitted_title_size(room: f64, width: impl Fn(f64) -> Option<f64>) -> f64 {
+    let mut size = 22.0;
+    while size > 11.0 && width(size).is_some_and(|w| w > room) {
+        size -= 1.0;
+    }
+    size
+}
+
 impl Chart<'_> {
     fn draw<Y>(
         &self,
@@ -675,8 +685,15 @@ impl Chart<'_> {
         let mut builder = ChartBuilder::on(root);
         builder.margin(px(15.0));
         if self.text {
+            let room = f64::from(root.dim_in_pixel().0) - 2.0 * f64::from(px(15.0));
+            let title_size = fitted_title_size(room, |size| {
+                let style = TextStyle::from(font(size).into_font());
+                root.estimate_text_size(self.labels.title, &style)
+                    .ok()
+                    .map(|(w, _)| f64::from(w))
+            });
             builder
-                .caption(self.labels.title, font(22.0))
+                .caption(self.labels.title, font(title_size))
                 .x_label_area_size(px(45.0))
                 .y_label_area_size(px(70.0));
         }
@@ -809,6 +826,21 @@ mod tests {
             assert_eq!(format_value(v).parse::<f64>().unwrap(), v);
         }
         assert!(format_value(f64::NAN).parse::<f64>().unwrap().is_nan());
+    }
+
+    #[test]
+    fn a_long_title_shrinks_to_fit_and_a_short_one_keeps_its_size() {
+        // 0.5 px per character per point: 40 characters at 22 pt are 440 px.
+        let width = |chars: f64| move |size: f64| Some(chars * size * 0.5);
+        assert_eq!(fitted_title_size(870.0, width(40.0)), 22.0);
+        // 100 characters fit in 870 px at 17 pt (850 px), not at 18 (900).
+        assert_eq!(fitted_title_size(870.0, width(100.0)), 17.0);
+        assert_eq!(
+            fitted_title_size(870.0, width(1000.0)),
+            11.0,
+            "no smaller than 11"
+        );
+        assert_eq!(fitted_title_size(870.0, |_| None), 22.0);
     }
 
     #[test]
