@@ -203,12 +203,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     });
     let t0 = std::time::Instant::now();
     let mix_share = args.mix_share.unwrap_or(0.5);
-    if !(0.0..=il::MAX_MIX_SHARE).contains(&mix_share) {
-        anyhow::bail!(
-            "--mix-share must be in 0..{} (the --mix frames' share of each epoch), got {mix_share}",
-            il::MAX_MIX_SHARE
-        );
-    }
+    il::check_mix_share(mix_share, &args.out)?;
     if args.mix.is_empty() && args.mix_share.is_some() {
         tracing::warn!("--mix-share without --mix: there is nothing to mix in");
     }

@@ -418,40 +418,33 @@ fn check_resume(
     share: f32,
     opts: &IlOptions,
 ) -> Result<(), TrainError> {
-    let differs = |what: &str, was: String, now: String| TrainError::Data {
-        path: state_path(&opts.out).display().to_string(),
-        reason: format!(
-            "--resume: the run started with {what} {was}, now {now}; resume with the same \
-             --data, --mix, --mix-share and --seed, or start a new --out"
-        ),
-    };
-    if saved.samples != own {
-        return Err(differs(
+    // With the same count of mixed-in frames, none means both shares are 0.
+    let pairs = [
+        (
             "own frames (--data)",
             saved.samples.to_string(),
             own.to_string(),
-        ));
-    }
-    if saved.mixed != mixed {
-        return Err(differs(
+        ),
+        (
             "mixed-in frames (--mix)",
             saved.mixed.to_string(),
             mixed.to_string(),
-        ));
-    }
-    if mixed > 0 && saved.mix_share != share {
-        return Err(differs(
+        ),
+        (
             "--mix-share",
             saved.mix_share.to_string(),
             share.to_string(),
-        ));
-    }
-    if saved.seed != opts.seed {
-        return Err(differs(
-            "--seed",
-            saved.seed.to_string(),
-            opts.seed.to_string(),
-        ));
+        ),
+        ("--seed", saved.seed.to_string(), opts.seed.to_string()),
+    ];
+    if let Some((what, was, now)) = pairs.iter().find(|(_, was, now)| was != now) {
+        return Err(TrainError::Data {
+            path: state_path(&opts.out).display().to_string(),
+            reason: format!(
+                "--resume: the run started with {what} {was}, now {now}; resume with the same \
+                 --data, --mix, --mix-share and --seed, or start a new --out"
+            ),
+        });
     }
     Ok(())
 }
@@ -516,21 +509,27 @@ pub fn raw_throughput(
     Ok((steps * batch) as f64 / t0.elapsed().as_secs_f64().max(1e-9))
 }
 
+/// `--mix-share` must be in 0..[`MAX_MIX_SHARE`] (`out` names the run in the error): the
+/// CLI checks it before loading any frames, [`train`] again for callers of the library.
+pub fn check_mix_share(share: f32, out: &Path) -> Result<(), TrainError> {
+    if (0.0..=MAX_MIX_SHARE).contains(&share) {
+        return Ok(());
+    }
+    Err(TrainError::Data {
+        path: out.display().to_string(),
+        reason: format!(
+            "--mix-share must be in 0..{MAX_MIX_SHARE} (the mixed-in frames' share of each \
+             epoch; {MAX_MIX_SHARE} is {} of them to each own frame), got {share}",
+            mixed_per_epoch(1, MAX_MIX_SHARE),
+        ),
+    })
+}
+
 /// `--mix-share` in 0..[`MAX_MIX_SHARE`]; a shift moves JetBot's xy target with the
 /// picture, and a (speed, steering) label does not move with it, so the shift is refused
 /// there.
 fn check_options(opts: &IlOptions) -> Result<(), TrainError> {
-    if !(0.0..=MAX_MIX_SHARE).contains(&opts.mix_share) {
-        return Err(TrainError::Data {
-            path: opts.out.display().to_string(),
-            reason: format!(
-                "--mix-share must be in 0..{MAX_MIX_SHARE} (the mixed-in frames' share of each \
-                 epoch; {MAX_MIX_SHARE} is {} of them to each own frame), got {}",
-                mixed_per_epoch(1, MAX_MIX_SHARE),
-                opts.mix_share
-            ),
-        });
-    }
+    check_mix_share(opts.mix_share, &opts.out)?;
     let shift = opts.augment.shift;
     if !(0.0..=0.5).contains(&shift) {
         return Err(TrainError::Data {

@@ -87,7 +87,7 @@ impl Resnet18Weights {
     /// uniform in `±1/sqrt(512)` (PyTorch's `nn.Linear` default).
     pub fn random(num_outputs: usize, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let bound = 1.0 / (FC_IN as f32).sqrt();
+        let bound = linear_bound();
         let tensors = Self::param_shapes(num_outputs)
             .into_iter()
             .map(|(name, dims)| {
@@ -115,7 +115,7 @@ impl Resnet18Weights {
     /// `seed`; every other tensor is kept as it is.
     pub fn with_fresh_head(&self, num_outputs: usize, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let bound = 1.0 / (FC_IN as f32).sqrt();
+        let bound = linear_bound();
         let n = num_outputs as i64;
         let weight = uniform(&mut rng, bound, num_outputs * FC_IN as usize);
         let bias = uniform(&mut rng, bound, num_outputs);
@@ -144,6 +144,11 @@ impl Resnet18Weights {
             }),
         }
     }
+}
+
+/// PyTorch's `nn.Linear` default initialisation bound for `fc`: `1/sqrt(512)`.
+fn linear_bound() -> f32 {
+    1.0 / (FC_IN as f32).sqrt()
 }
 
 fn uniform(rng: &mut impl Rng, bound: f32, len: usize) -> Vec<f32> {
