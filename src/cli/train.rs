@@ -127,6 +127,11 @@ pub struct IlArgs {
     /// (0: off, JetBot's notebook; 0.25: up to a quarter of the frame).
     #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
     shift: f32,
+    /// Share of the images (0..1) given a random convolution (RandConv: a random 1x1 to 7x7
+    /// colour filter blended with the picture, so textures and colours vary and shapes
+    /// stay); 0: off.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    rand_conv: f32,
     /// Frames mixed into every epoch (repeat for several folders): sim demonstrations while
     /// fine-tuning on real frames, say. Never held out: the best epoch is picked on --data.
     #[arg(long, value_name = "DIR")]
@@ -195,6 +200,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
             args.test_fraction
         );
     }
+    il::check_rand_conv(args.rand_conv, &args.out)?;
     let labels = LabelMap::new(contract.output, &cfg.control.gains());
     let threads = args.decode_threads.unwrap_or_else(|| {
         std::thread::available_parallelism()
@@ -241,6 +247,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         opts.augment = Augment::NONE;
     }
     opts.augment.shift = args.shift;
+    opts.augment.rand_conv = args.rand_conv;
     opts.mix_share = mix_share;
     let report = il::train(&dataset, &opts, |e| {
         tracing::info!(

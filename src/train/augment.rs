@@ -24,6 +24,15 @@
 //! It teaches the network that the target moves with the road, and spreads the labels over
 //! the frame as people's clicks are spread; it has no meaning for a (speed, steering) head.
 //!
+//! A random convolution (RandConv, Xu et al. 2021), drawn for a share of the images, runs
+//! last, on the normalised tensor: a 3 -> 3 channel filter of a random size, blended with
+//! the picture, so colours and textures change and shapes (the road's edges) stay:
+//!
+//! ```text
+//! out[o](x, y) = a in[o](x, y) + (1 - a) sum_{i, u, v} w[o][i][u][v] in[i](clamp(x + u), clamp(y + v))
+//! k ~ {1, 3, 5, 7}, w ~ U(-1/k, 1/k) (variance 1 / (3 k^2): He's for 3 k^2 inputs), a ~ U(0, 1)
+//! ```
+//!
 //! With no augmentation the tensor equals the daemon's [`Preprocessor`] output on the
 //! same frame (to float rounding).
 //!
@@ -45,6 +54,8 @@ pub struct Augment {
     pub hue: f32,
     /// Largest shift of the picture (and an xy label with it), as a fraction of its side.
     pub shift: f32,
+    /// Share of the images (0..=1) that get a random convolution.
+    pub rand_conv: f32,
 }
 
 impl Augment {
@@ -55,6 +66,7 @@ impl Augment {
         saturation: 0.0,
         hue: 0.0,
         shift: 0.0,
+        rand_conv: 0.0,
     };
     pub const JETBOT: Augment = Augment {
         flip: true,
@@ -63,6 +75,7 @@ impl Augment {
         saturation: 0.3,
         hue: 0.3,
         shift: 0.0,
+        rand_conv: 0.0,
     };
 }
 
@@ -125,6 +138,67 @@ pub fn shift_pixels(u: f32, shift: f32, label: f32, size: u32) -> i32 {
     }
     let mid = (lo + hi) / 2.0;
     (mid + u * (hi - lo) / 2.0).round().clamp(lo, hi) as i32
+}
+
+/// Kernel sizes a random convolution draws from.
+pub const RAND_CONV_SIZES: [usize; 4] = [1, 3, 5, 7];
+
+/// One image's random convolution: `weights[((o * 3 + i) * k + v) * k + u]` for output
+/// channel `o`, input channel `i`, kernel row `v`, column `u` (offsets `-k/2..=k/2`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RandConv {
+    pub k: usize,
+    pub weights: Vec<f32>,
+    /// The original picture's weight in the blend.
+    pub alpha: f32,
+}
+
+impl RandConv {
+    /// Draws a kernel size, its weights and the blend.
+    pub fn sample(rng: &mut impl Rng) -> Self {
+        let k = RAND_CONV_SIZES[rng.random_range(0..RAND_CONV_SIZES.len())];
+        let bound = 1.0 / k as f32;
+        let weights = (0..9 * k * k)
+            .map(|_| rng.random_range(-bound..=bound))
+            .collect();
+        Self {
+            k,
+            weights,
+            alpha: rng.random_range(0.0..=1.0),
+        }
+    }
+
+    /// Applies the filter to one image's NCHW planes (`3 * size * size` values) in place;
+    /// pixels beyond the border repeat the border's.
+    pub fn apply(&self, size: u32, planes: &mut [f32]) {
+        let s = size as usize;
+        let plane = s * s;
+        let k = self.k;
+        let half = (k / 2) as i32;
+        let last = s as i32 - 1;
+        let input = planes.to_vec();
+        for o in 0..3 {
+            for y in 0..s {
+                for x in 0..s {
+                    let mut acc = 0.0;
+                    for i in 0..3 {
+                        let w = &self.weights[(o * 3 + i) * k * k..][..k * k];
+                        let src = &input[i * plane..][..plane];
+                        for v in 0..k {
+                            let sy = (y as i32 + v as i32 - half).clamp(0, last) as usize;
+                            let row = &src[sy * s..][..s];
+                            for u in 0..k {
+                                let sx = (x as i32 + u as i32 - half).clamp(0, last) as usize;
+                                acc += w[v * k + u] * row[sx];
+                            }
+                        }
+                    }
+                    let at = o * plane + y * s + x;
+                    planes[at] = self.alpha * input[at] + (1.0 - self.alpha) * acc;
+                }
+            }
+        }
+    }
 }
 
 fn gray(r: f32, g: f32, b: f32) -> f32 {
@@ -236,13 +310,12 @@ pub fn make_batch(
                 *v += 2.0 * d.shift[c] as f32 / size as f32;
             }
         }
-        write_input(
-            &sample.pixels,
-            size,
-            contract,
-            &d,
-            &mut batch.inputs[k * per..(k + 1) * per],
-        );
+        let planes = &mut batch.inputs[k * per..(k + 1) * per];
+        write_input(&sample.pixels, size, contract, &d, planes);
+        // Drawn only when on, so runs without it keep their seeded draws.
+        if augment.rand_conv > 0.0 && rng.random_bool(f64::from(augment.rand_conv.min(1.0))) {
+            RandConv::sample(rng).apply(size, planes);
+        }
         batch.labels.extend_from_slice(&label);
     }
     batch
@@ -410,6 +483,110 @@ mod tests {
         };
         write_input(&bw, 2, &c, &d, &mut out);
         assert!(out.iter().all(|v| (v - 0.5).abs() < 1e-5), "{out:?}");
+    }
+
+    #[test]
+    fn rand_conv_worked_values() {
+        // One channel's 3x3 picture 1..=9 (the others zero); the filter takes channel 0's
+        // 3x3 box mean into output channel 0 and nothing else, blended half and half.
+        let mut planes = vec![0.0; 27];
+        for (i, v) in planes[..9].iter_mut().enumerate() {
+            *v = (i + 1) as f32;
+        }
+        let mut weights = vec![0.0; 81];
+        weights[..9].fill(1.0 / 9.0);
+        let conv = RandConv {
+            k: 3,
+            weights,
+            alpha: 0.5,
+        };
+        conv.apply(3, &mut planes);
+        // Centre: box mean 5, blend (5 + 5) / 2 = 5. Corner (0, 0): the border repeats, so
+        // its 3x3 is 1 1 2 / 1 1 2 / 4 4 5 = 21 / 9 = 2.333; (1 + 2.333) / 2 = 1.667.
+        assert!((planes[4] - 5.0).abs() < 1e-5, "{:?}", &planes[..9]);
+        assert!((planes[0] - (1.0 + 21.0 / 9.0) / 2.0).abs() < 1e-5);
+        // Corner (2, 2): 5 6 6 / 8 9 9 / 8 9 9 = 69 / 9; (9 + 7.667) / 2.
+        assert!((planes[8] - (9.0 + 69.0 / 9.0) / 2.0).abs() < 1e-5);
+        // Channels 1 and 2 were zero and take nothing: still zero.
+        assert!(planes[9..].iter().all(|v| *v == 0.0), "{:?}", &planes[9..]);
+
+        // A 1x1 filter swapping channels 0 and 1, the picture's weight 0: a channel swap.
+        let mut planes: Vec<f32> = (0..12).map(|v| v as f32).collect();
+        let mut weights = vec![0.0; 9];
+        weights[1] = 1.0; // out 0 <- in 1
+        weights[3] = 1.0; // out 1 <- in 0
+        weights[8] = 1.0; // out 2 <- in 2
+        let swap = RandConv {
+            k: 1,
+            weights,
+            alpha: 0.0,
+        };
+        swap.apply(2, &mut planes);
+        assert_eq!(
+            planes,
+            vec![4.0, 5.0, 6.0, 7.0, 0.0, 1.0, 2.0, 3.0, 8.0, 9.0, 10.0, 11.0]
+        );
+    }
+
+    #[test]
+    fn rand_conv_draws_are_seeded_and_bounded() {
+        let draw = |seed| RandConv::sample(&mut ChaCha8Rng::seed_from_u64(seed));
+        assert_eq!(draw(7), draw(7));
+        assert_ne!(draw(7), draw(8));
+        let mut sizes = std::collections::BTreeSet::new();
+        for seed in 0..64 {
+            let c = draw(seed);
+            assert!(RAND_CONV_SIZES.contains(&c.k));
+            assert_eq!(c.weights.len(), 9 * c.k * c.k);
+            let bound = 1.0 / c.k as f32;
+            assert!(c.weights.iter().all(|w| w.abs() <= bound), "k {}", c.k);
+            assert!((0.0..=1.0).contains(&c.alpha));
+            sizes.insert(c.k);
+        }
+        assert_eq!(sizes.len(), RAND_CONV_SIZES.len(), "{sizes:?}");
+    }
+
+    #[test]
+    fn rand_conv_changes_pictures_not_labels_for_its_share() {
+        let c = contract(ChannelOrder::Rgb);
+        let samples: Vec<Sample> = (0..4)
+            .map(|i| Sample {
+                pixels: FRAME.iter().map(|v| v.wrapping_add(i * 40)).collect(),
+                label: [i as f32 / 4.0, 0.5],
+            })
+            .collect();
+        let run = |a: &Augment| {
+            let mut rng = ChaCha8Rng::seed_from_u64(11);
+            make_batch(&samples, &[0, 1, 2, 3], 2, &c, a, 1, &mut rng)
+        };
+        let plain = run(&Augment::NONE);
+        let always = run(&Augment {
+            rand_conv: 1.0,
+            ..Augment::NONE
+        });
+        assert_eq!(always.labels, plain.labels);
+        let per = 12;
+        for k in 0..4 {
+            assert_ne!(
+                always.inputs[k * per..][..per],
+                plain.inputs[k * per..][..per],
+                "image {k}"
+            );
+        }
+        // A share of 0.5: about half of 200 images change (binomial sd 7).
+        let idx: Vec<usize> = (0..200).map(|i| i % 4).collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let half = Augment {
+            rand_conv: 0.5,
+            ..Augment::NONE
+        };
+        let b = make_batch(&samples, &idx, 2, &c, &half, 1, &mut rng);
+        let changed = idx
+            .iter()
+            .enumerate()
+            .filter(|&(n, &i)| b.inputs[n * per..][..per] != plain.inputs[i * per..][..per])
+            .count();
+        assert!((70..=130).contains(&changed), "{changed} of 200 changed");
     }
 
     #[test]

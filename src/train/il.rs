@@ -525,11 +525,23 @@ pub fn check_mix_share(share: f32, out: &Path) -> Result<(), TrainError> {
     })
 }
 
-/// `--mix-share` in 0..[`MAX_MIX_SHARE`]; a shift moves JetBot's xy target with the
-/// picture, and a (speed, steering) label does not move with it, so the shift is refused
-/// there.
+/// `--rand-conv`: a share of the images, 0..=1 (checked by the CLI before it loads frames).
+pub fn check_rand_conv(share: f32, out: &Path) -> Result<(), TrainError> {
+    if (0.0..=1.0).contains(&share) {
+        return Ok(());
+    }
+    Err(TrainError::Data {
+        path: out.display().to_string(),
+        reason: format!("--rand-conv must be in 0..1 (a share of the images), got {share}"),
+    })
+}
+
+/// `--mix-share` in 0..[`MAX_MIX_SHARE`], `--rand-conv` in 0..1; a shift moves JetBot's xy
+/// target with the picture, and a (speed, steering) label does not move with it, so the
+/// shift is refused there.
 fn check_options(opts: &IlOptions) -> Result<(), TrainError> {
     check_mix_share(opts.mix_share, &opts.out)?;
+    check_rand_conv(opts.augment.rand_conv, &opts.out)?;
     let shift = opts.augment.shift;
     if !(0.0..=0.5).contains(&shift) {
         return Err(TrainError::Data {
@@ -824,6 +836,17 @@ mod tests {
             ..opts(OutputKind::Xy, 0.0)
         };
         check_options(&share(0.95)).unwrap();
+        // --rand-conv: a share of the images.
+        let rand_conv = |v: f32| {
+            let mut o = opts(OutputKind::SpeedSteering, 0.0);
+            o.augment.rand_conv = v;
+            o
+        };
+        check_options(&rand_conv(1.0)).unwrap();
+        for bad in [1.5, -0.1, f32::NAN] {
+            let err = check_options(&rand_conv(bad)).unwrap_err().to_string();
+            assert!(err.contains("--rand-conv must be in 0..1"), "{bad}: {err}");
+        }
         let err = check_options(&share(0.96)).unwrap_err().to_string();
         assert!(
             err.contains("--mix-share must be in 0..0.95") && err.contains("19 of them"),
