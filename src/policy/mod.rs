@@ -15,6 +15,7 @@ pub mod optimize;
 pub mod ort_policy;
 pub mod preprocess;
 pub mod providers;
+pub mod pytorch;
 pub mod quantize;
 pub mod runtime;
 

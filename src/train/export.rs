@@ -7,18 +7,24 @@ use std::path::Path;
 
 use burn::module::Module;
 
-use super::{Resnet18, TrainError};
+use super::{Net, TrainError};
 use crate::policy::ModelContract;
-use crate::policy::onnx::{Resnet18Weights, resnet18_model, write_model};
+use crate::policy::onnx::{NetWeights, Resnet18Weights, resnet18_model, write_model};
 
 /// Writes `model` (in evaluation form: running statistics) to `path`.
-pub fn write_actor(
-    model: &Resnet18,
+pub fn write_actor(model: &Net, contract: &ModelContract, path: &Path) -> Result<(), TrainError> {
+    write_net_weights(&model.clone().valid().to_weights()?, contract, path)
+}
+
+/// Writes either network's weights to `path` with `contract` in the metadata.
+pub fn write_net_weights(
+    weights: &NetWeights,
     contract: &ModelContract,
     path: &Path,
 ) -> Result<(), TrainError> {
-    let weights = model.clone().valid().to_weights()?;
-    write_weights(&weights, contract, path)
+    let proto = weights.model(contract.input_size, contract, env!("CARGO_PKG_VERSION"))?;
+    write_model(path, &proto)?;
+    Ok(())
 }
 
 /// Writes ResNet-18 weights to `path` with `contract` in the metadata.

@@ -40,8 +40,9 @@ use super::augment::{Augment, Batch, make_batch};
 use super::curve::{CsvLog, Series, plot_png, read_csv};
 use super::data::{Dataset, LabelMap, split};
 use super::export::write_actor;
-use super::{Resnet18, TrainDevice, TrainError, load_onnx};
-use crate::policy::onnx::Resnet18Weights;
+use super::net::{DEFAULT_BN_MOMENTUM, Net, load_net};
+use super::{TrainDevice, TrainError};
+use crate::policy::onnx::{Arch, NetWeights};
 use crate::policy::{ModelContract, OutputKind};
 
 /// Settings of one imitation-learning run.
@@ -50,8 +51,19 @@ pub struct IlOptions {
     pub out: PathBuf,
     pub contract: ModelContract,
     pub labels: LabelMap,
-    /// Start from these weights (our export or a torchvision-layout ResNet-18); else random.
+    /// Start from these weights: an ONNX file (our export, or a torchvision- or port-layout
+    /// export from PyTorch) or a PyTorch state dict (`.pth` of `arch`); else random.
     pub init: Option<PathBuf>,
+    /// The architecture of a random start and of a `.pth` `init` (an ONNX file says its own).
+    pub arch: Arch,
+    /// BatchNorm momentum while training (burn's = PyTorch's convention: the batch
+    /// statistic's weight).
+    pub bn_momentum: f64,
+    /// Keep every BatchNorm's running statistics as they are (the start's): the network
+    /// normalises with them in training too. For a pretrained start on few frames.
+    pub freeze_bn: bool,
+    /// The backbone's learning rate as a share of `lr` (the output layer always has `lr`).
+    pub backbone_lr: f64,
     pub epochs: usize,
     pub batch: usize,
     pub lr: f64,
@@ -75,6 +87,10 @@ impl IlOptions {
             contract,
             labels,
             init: None,
+            arch: Arch::Resnet18,
+            bn_momentum: DEFAULT_BN_MOMENTUM,
+            freeze_bn: false,
+            backbone_lr: 1.0,
             epochs: 50,
             batch: 64,
             lr: 1e-3,
@@ -180,7 +196,7 @@ impl ModuleMapper for SetIds {
     }
 }
 
-fn param_ids(model: &Resnet18) -> Vec<u64> {
+fn param_ids(model: &Net) -> Vec<u64> {
     let mut ids = Ids(Vec::new());
     model.visit(&mut ids);
     ids.0
@@ -200,10 +216,10 @@ fn save_optim(optim: &burn::optim::ModuleOptimizer, out: &Path) -> Result<(), Tr
 /// Adam, with its saved state when resuming a run that saved it (the model's parameters
 /// take their saved ids so the state finds them).
 fn resumed_optim(
-    model: Resnet18,
+    model: Net,
     state: &IlState,
     out: &Path,
-) -> Result<(Resnet18, burn::optim::ModuleOptimizer), TrainError> {
+) -> Result<(Net, burn::optim::ModuleOptimizer), TrainError> {
     let optim = AdamConfig::new().init();
     let path = optim_path(out);
     if state.epochs_done == 0 || state.param_ids.is_empty() || !path.is_file() {
@@ -265,8 +281,9 @@ fn write_state(path: &Path, state: &IlState) -> Result<(), TrainError> {
     std::fs::rename(&tmp, path).map_err(io_err(path))
 }
 
-/// The network to start from: `last.onnx` when resuming, else `--init`, else random.
-fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState), TrainError> {
+/// The network to start from: `last.onnx` when resuming, else `--init`, else random; with
+/// the run's BatchNorm momentum and, with `freeze_bn`, frozen statistics.
+fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Net, IlState), TrainError> {
     let fresh = IlState {
         epochs_done: 0,
         best_epoch: 0,
@@ -278,31 +295,50 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Resnet18, IlState
         seconds: 0.0,
         param_ids: Vec::new(),
     };
+    let size = Some(opts.contract.input_size);
+    let finish = |net: Net| {
+        if opts.freeze_bn {
+            net.freeze_batch_norm_statistics()
+        } else {
+            net
+        }
+    };
     if opts.resume && state_path(&opts.out).is_file() {
         let state = read_state(&state_path(&opts.out))?;
-        let (model, _) = load_onnx(&last_path(&opts.out), device)?;
-        return Ok((model, state));
+        let (model, _) = load_net(
+            &last_path(&opts.out),
+            opts.arch,
+            size,
+            opts.bn_momentum,
+            device,
+        )?;
+        return Ok((finish(model), state));
     }
     let model = match &opts.init {
         Some(path) => {
-            let (model, _) = load_onnx(path, device)?;
+            let (model, _) = load_net(path, opts.arch, size, opts.bn_momentum, device)?;
             if model.num_outputs() == 2 {
                 model
             } else {
-                // A classifier (torchvision's ImageNet ResNet-18: 1000): keep the backbone,
-                // a fresh 2-output head, as JetBot's notebook does.
+                // A classifier (an ImageNet network: 1000): keep the backbone, a fresh
+                // 2-output head, as JetBot's notebook does.
                 tracing::info!(
                     "{}: {} outputs; keeping its backbone with a fresh 2-output head",
                     path.display(),
                     model.num_outputs()
                 );
                 let weights = model.to_weights()?.with_fresh_head(2, opts.seed);
-                Resnet18::from_weights(&weights, device)?
+                Net::from_weights(&weights, opts.contract.input_size, opts.bn_momentum, device)?
             }
         }
-        None => Resnet18::from_weights(&Resnet18Weights::random(2, opts.seed), device)?,
+        None => Net::from_weights(
+            &NetWeights::random(opts.arch, 2, opts.seed),
+            opts.contract.input_size,
+            opts.bn_momentum,
+            device,
+        )?,
     };
-    Ok((model, fresh))
+    Ok((finish(model), fresh))
 }
 
 fn to_tensors(b: Batch, size: usize, device: &Device) -> (Tensor<4>, Tensor<2>) {
@@ -329,7 +365,7 @@ fn scalar(t: Tensor<1>) -> Result<f64, TrainError> {
 
 /// The mean loss of `model` (evaluation form) on `idx`, without augmentation.
 pub fn evaluate(
-    model: &Resnet18,
+    model: &Net,
     data: &Dataset,
     idx: &[usize],
     contract: &ModelContract,
@@ -463,18 +499,27 @@ pub fn epoch_batches(train: &[usize], batch: usize, seed: u64, epoch: usize) -> 
         .collect()
 }
 
-/// One Adam step on a batch; returns the updated model and the batch loss.
+/// One Adam step on a batch; returns the updated model and the batch loss. The output
+/// layer steps with `lr`, the backbone with `lr * backbone_lr` (one step when they agree).
 fn train_step(
-    model: Resnet18,
+    model: Net,
     optim: &mut burn::optim::ModuleOptimizer,
     x: Tensor<4>,
     y: Tensor<2>,
     lr: f64,
-) -> Result<(Resnet18, f64), TrainError> {
+    backbone_lr: f64,
+) -> Result<(Net, f64), TrainError> {
     let loss = mse(model.forward(x), y);
     let value = scalar(loss.clone().detach())?;
-    let grads = GradientsParams::from_grads(loss.backward(), &model);
-    Ok((optim.step(lr, model, grads), value))
+    let mut grads = loss.backward();
+    if backbone_lr == 1.0 {
+        let all = GradientsParams::from_grads(grads, &model);
+        return Ok((optim.step(lr, model, all), value));
+    }
+    let head = GradientsParams::from_module(&mut grads, model.head());
+    let backbone = GradientsParams::from_grads(grads, &model);
+    let model = optim.step(lr * backbone_lr, model, backbone);
+    Ok((optim.step(lr, model, head), value))
 }
 
 /// The framework's raw training throughput in images/s: `steps` Adam steps (after one
@@ -482,12 +527,18 @@ fn train_step(
 /// [`train`]'s images/s.
 pub fn raw_throughput(
     device: TrainDevice,
+    arch: Arch,
     size: u32,
     batch: usize,
     steps: usize,
 ) -> Result<f64, TrainError> {
     let device = device.open()?.autodiff();
-    let mut model = Resnet18::from_weights(&Resnet18Weights::random(2, 0), &device)?;
+    let mut model = Net::from_weights(
+        &NetWeights::random(arch, 2, 0),
+        size,
+        DEFAULT_BN_MOMENTUM,
+        &device,
+    )?;
     let mut optim = AdamConfig::new().init();
     let s = size as usize;
     let x = Tensor::<4>::from_data(
@@ -503,7 +554,7 @@ pub fn raw_throughput(
         if i == 1 {
             t0 = Instant::now();
         }
-        let (next, _) = train_step(model, &mut optim, x.clone(), y.clone(), 1e-4)?;
+        let (next, _) = train_step(model, &mut optim, x.clone(), y.clone(), 1e-4, 1.0)?;
         model = next;
     }
     Ok((steps * batch) as f64 / t0.elapsed().as_secs_f64().max(1e-9))
@@ -632,7 +683,8 @@ pub fn train(
             for b in rx.iter() {
                 let n = b.len;
                 let (x, y) = to_tensors(b, size, &device);
-                let (next, value) = train_step(model.clone(), &mut optim, x, y, opts.lr)?;
+                let (next, value) =
+                    train_step(model.clone(), &mut optim, x, y, opts.lr, opts.backbone_lr)?;
                 if !value.is_finite() {
                     return Err(TrainError::Diverged { epoch, loss: value });
                 }
@@ -875,7 +927,7 @@ mod tests {
         // A 10-class "ImageNet" network: a trained backbone, a 10-output fc.
         train(&data, &opts("a"), |_| {}).unwrap();
         let device = TrainDevice::Flex.open().unwrap();
-        let (first, _) = load_onnx(&dir.path().join("a/last.onnx"), &device).unwrap();
+        let (first, _) = super::super::load_onnx(&dir.path().join("a/last.onnx"), &device).unwrap();
         let classifier = first.to_weights().unwrap().with_fresh_head(10, 1);
         let init = dir.path().join("classifier.onnx");
         super::super::export::write_weights(&classifier, &contract, &init).unwrap();
@@ -885,15 +937,16 @@ mod tests {
         let w = model.to_weights().unwrap();
         assert_eq!(w.num_outputs().unwrap(), 2);
         assert_eq!(
-            w.tensors["conv1.weight"],
+            w.tensors()["conv1.weight"],
             classifier.tensors["conv1.weight"]
         );
         assert_eq!(
-            w.tensors["fc.bias"],
+            w.tensors()["fc.bias"],
             classifier.with_fresh_head(2, 0).tensors["fc.bias"]
         );
         train(&data, &from_classifier, |_| {}).unwrap();
-        let (trained, _) = load_onnx(&dir.path().join("b/last.onnx"), &device).unwrap();
+        let (trained, _) =
+            super::super::load_onnx(&dir.path().join("b/last.onnx"), &device).unwrap();
         assert_eq!(trained.num_outputs(), 2);
     }
 

@@ -11,6 +11,9 @@
 //! - [`resnet`]: ResNet-18 in torchvision's layout, [`Resnet18::from_weights`] /
 //!   [`Resnet18::to_weights`] against the ONNX writer's [`Resnet18Weights`], and
 //!   [`load_onnx`] for our exports and torchvision-layout files exported from PyTorch.
+//! - [`lite0`]: EfficientNet-Lite0 the same way; [`net`]: [`Net`], either of the two as one
+//!   module, and [`load_net`] / [`read_onnx`] for ONNX files and PyTorch state dicts.
+//! - [`tensors`]: named tensors into and out of burn layers, for both.
 //!
 //! [`Resnet18Weights`]: crate::policy::onnx::Resnet18Weights
 
@@ -22,9 +25,13 @@ pub mod device;
 pub mod experiment;
 pub mod export;
 pub mod il;
+pub mod lite0;
+pub mod net;
 pub mod resnet;
+pub mod tensors;
 
 pub use device::TrainDevice;
+pub use net::{Net, load_net, read_onnx};
 pub use resnet::{Resnet18, load_onnx};
 
 /// Errors of the trainer.

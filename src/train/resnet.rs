@@ -21,22 +21,20 @@
 //! the module is in training mode; on a plain device, or after [`Module::valid`], it uses
 //! the running statistics, as ONNX Runtime does.
 
-use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use burn::module::{Module, Param, RunningState};
+use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig, MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, Linear, PaddingConfig2d};
 use burn::tensor::activation::relu;
-use burn::tensor::{Device, Tensor, TensorData};
-use prost::Message;
-use prost::bytes::Bytes;
+use burn::tensor::{Device, Tensor};
 
 use super::TrainError;
+use super::net::read_onnx;
+use super::tensors::{Source, put_bn, put_conv, put_linear};
 use crate::policy::ModelContract;
-use crate::policy::onnx::proto::{ModelProto, TensorProto};
-use crate::policy::onnx::{Dim, Resnet18Weights, inspect_bytes};
+use crate::policy::onnx::{NetWeights, Resnet18Weights, TensorMap};
 
 /// BatchNorm epsilon (torchvision and our ONNX exports).
 pub const BN_EPSILON: f64 = 1e-5;
@@ -97,10 +95,20 @@ impl Resnet18 {
     pub fn from_weights(weights: &Resnet18Weights, device: &Device) -> Result<Self, TrainError> {
         let n = weights.num_outputs()?;
         let src = Source {
-            weights,
+            tensors: &weights.tensors,
             shapes: Resnet18Weights::param_shapes(n).into_iter().collect(),
             device,
+            title: "ResNet-18",
         };
+        let conv = |name: &str, stride: usize, pad: usize| {
+            src.conv(
+                name,
+                stride,
+                PaddingConfig2d::Explicit(pad, pad, pad, pad),
+                1,
+            )
+        };
+        let bn = |name: &str| src.bn(name, BN_EPSILON, BN_MOMENTUM);
         let maxpool = MaxPool2dConfig::new([3, 3])
             .with_strides([2, 2])
             .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
@@ -112,41 +120,32 @@ impl Resnet18 {
                     let stride = if stage > 1 && b == 0 { 2 } else { 1 };
                     let downsample = if stride == 2 {
                         Some(Downsample {
-                            conv: src.conv(&format!("{p}.downsample.0"), 2, 0)?,
-                            bn: src.bn(&format!("{p}.downsample.1"))?,
+                            conv: conv(&format!("{p}.downsample.0"), 2, 0)?,
+                            bn: bn(&format!("{p}.downsample.1"))?,
                         })
                     } else {
                         None
                     };
                     Ok(BasicBlock {
-                        conv1: src.conv(&format!("{p}.conv1"), stride, 1)?,
-                        bn1: src.bn(&format!("{p}.bn1"))?,
-                        conv2: src.conv(&format!("{p}.conv2"), 1, 1)?,
-                        bn2: src.bn(&format!("{p}.bn2"))?,
+                        conv1: conv(&format!("{p}.conv1"), stride, 1)?,
+                        bn1: bn(&format!("{p}.bn1"))?,
+                        conv2: conv(&format!("{p}.conv2"), 1, 1)?,
+                        bn2: bn(&format!("{p}.bn2"))?,
                         downsample,
                     })
                 })
                 .collect()
         };
-        let fc_weight: Tensor<2> = src.tensor("fc.weight")?; // [N,512]
         Ok(Self {
-            conv1: src.conv("conv1", 2, 3)?,
-            bn1: src.bn("bn1")?,
+            conv1: conv("conv1", 2, 3)?,
+            bn1: bn("bn1")?,
             maxpool,
             layer1: layer(1)?,
             layer2: layer(2)?,
             layer3: layer(3)?,
             layer4: layer(4)?,
             avgpool: AdaptiveAvgPool2dConfig::new([1, 1]).init(),
-            fc: Linear {
-                // [512,N], stored contiguously (as a trained layer's is: the arithmetic,
-                // and so the rounding, then matches a model that never left memory).
-                weight: Param::from_tensor(Tensor::from_data(
-                    fc_weight.transpose().into_data(),
-                    device,
-                )),
-                bias: Some(Param::from_tensor(src.tensor("fc.bias")?)), // [N]
-            },
+            fc: src.linear("fc")?,
         })
     }
 
@@ -155,7 +154,7 @@ impl Resnet18 {
     /// statistics are read with `value_sync`, so the latest training step's update is
     /// included (burn's `RunningState::value` may lag one update behind).
     pub fn to_weights(&self) -> Result<Resnet18Weights, TrainError> {
-        let mut out = BTreeMap::new();
+        let mut out = TensorMap::new();
         put_conv(&mut out, "conv1", &self.conv1)?;
         put_bn(&mut out, "bn1", &self.bn1)?;
         for (s, layer) in [&self.layer1, &self.layer2, &self.layer3, &self.layer4]
@@ -174,11 +173,26 @@ impl Resnet18 {
                 }
             }
         }
-        put(&mut out, "fc.weight", self.fc.weight.val().transpose())?; // [N,512]
-        if let Some(bias) = &self.fc.bias {
-            put(&mut out, "fc.bias", bias.val())?;
-        }
+        put_linear(&mut out, "fc", &self.fc)?;
         Ok(Resnet18Weights { tensors: out })
+    }
+
+    /// Calls `f` on every BatchNorm, in `to_weights` order.
+    pub fn for_each_batch_norm(&mut self, f: &mut impl FnMut(&mut BatchNorm)) {
+        f(&mut self.bn1);
+        for block in self
+            .layer1
+            .iter_mut()
+            .chain(&mut self.layer2)
+            .chain(&mut self.layer3)
+            .chain(&mut self.layer4)
+        {
+            f(&mut block.bn1);
+            f(&mut block.bn2);
+            if let Some(d) = &mut block.downsample {
+                f(&mut d.bn);
+            }
+        }
     }
 
     /// Number of outputs `N` of `fc`.
@@ -211,262 +225,25 @@ impl Resnet18 {
     }
 }
 
-/// Looks up tensors by torchvision name and checks them against the expected shapes.
-struct Source<'a> {
-    weights: &'a Resnet18Weights,
-    shapes: BTreeMap<String, Vec<i64>>,
-    device: &'a Device,
-}
-
-impl Source<'_> {
-    fn tensor<const D: usize>(&self, name: &str) -> Result<Tensor<D>, TrainError> {
-        let expected = self
-            .shapes
-            .get(name)
-            .ok_or_else(|| TrainError::TensorData {
-                name: name.to_string(),
-                reason: "not a ResNet-18 tensor".into(),
-            })?;
-        let (dims, values) =
-            self.weights
-                .tensors
-                .get(name)
-                .ok_or_else(|| TrainError::MissingTensor {
-                    name: name.to_string(),
-                    expected: shape_string(expected),
-                })?;
-        if dims != expected || dims.len() != D {
-            return Err(TrainError::TensorShape {
-                name: name.to_string(),
-                expected: shape_string(expected),
-                found: shape_string(dims),
-            });
-        }
-        let shape: Vec<usize> = dims.iter().map(|&d| d as usize).collect();
-        let count: usize = shape.iter().product();
-        if values.len() != count {
-            return Err(TrainError::TensorData {
-                name: name.to_string(),
-                reason: format!(
-                    "{} values, its shape {} needs {count}",
-                    values.len(),
-                    shape_string(dims)
-                ),
-            });
-        }
-        Ok(Tensor::from_data(
-            TensorData::new(values.clone(), shape),
-            self.device,
-        ))
-    }
-
-    fn conv(&self, name: &str, stride: usize, pad: usize) -> Result<Conv2d, TrainError> {
-        let weight: Tensor<4> = self.tensor(&format!("{name}.weight"))?; // [O,I,k,k]
-        let [_, _, kh, kw] = weight.dims();
-        Ok(Conv2d {
-            weight: Param::from_tensor(weight),
-            bias: None,
-            stride: [stride, stride],
-            kernel_size: [kh, kw],
-            dilation: [1, 1],
-            groups: 1,
-            padding: PaddingConfig2d::Explicit(pad, pad, pad, pad),
-        })
-    }
-
-    fn bn(&self, name: &str) -> Result<BatchNorm, TrainError> {
-        let t = |p: &str| self.tensor::<1>(&format!("{name}.{p}")); // [C]
-        Ok(BatchNorm {
-            gamma: Param::from_tensor(t("weight")?),
-            beta: Param::from_tensor(t("bias")?),
-            training: Param::from_bool(true),
-            running_mean: RunningState::new(t("running_mean")?),
-            running_var: RunningState::new(t("running_var")?),
-            momentum: BN_MOMENTUM,
-            epsilon: BN_EPSILON,
-        })
-    }
-}
-
-type TensorMap = BTreeMap<String, (Vec<i64>, Vec<f32>)>;
-
-fn put<const D: usize>(out: &mut TensorMap, name: &str, t: Tensor<D>) -> Result<(), TrainError> {
-    let dims: Vec<i64> = t.dims().iter().map(|&d| d as i64).collect();
-    let values = t
-        .try_into_data_as::<f32>()
-        .map_err(|e| TrainError::Backend(format!("reading `{name}`: {e:?}")))?
-        .try_into_vec::<f32>()
-        .map_err(|e| TrainError::Backend(format!("reading `{name}`: {e:?}")))?;
-    out.insert(name.to_string(), (dims, values));
-    Ok(())
-}
-
-fn put_conv(out: &mut TensorMap, name: &str, conv: &Conv2d) -> Result<(), TrainError> {
-    put(out, &format!("{name}.weight"), conv.weight.val())
-}
-
-fn put_bn(out: &mut TensorMap, name: &str, bn: &BatchNorm) -> Result<(), TrainError> {
-    put(out, &format!("{name}.weight"), bn.gamma.val())?;
-    put(out, &format!("{name}.bias"), bn.beta.val())?;
-    put(
-        out,
-        &format!("{name}.running_mean"),
-        bn.running_mean.value_sync(),
-    )?;
-    put(
-        out,
-        &format!("{name}.running_var"),
-        bn.running_var.value_sync(),
-    )
-}
-
-fn shape_string(dims: &[i64]) -> String {
-    let parts: Vec<String> = dims.iter().map(i64::to_string).collect();
-    format!("[{}]", parts.join(","))
-}
-
-/// Reads a ResNet-18 from an ONNX file: our exports (`model init`, the trainer's export) or
-/// a torchvision-layout ResNet-18 exported from PyTorch. Initializers are matched by their
-/// torchvision names; a common prefix in front of all of them (`model.`, `backbone.`, ...,
-/// as `torch.onnx.export` writes for a wrapped module) is detected from where `conv1.weight`
-/// and `fc.weight` sit and stripped. Values are float32, as `raw_data` (little-endian) or
-/// `float_data`; other initializers (`num_batches_tracked`, ...) are ignored.
-///
-/// The contract comes from the model's metadata; a model without one gets the default
-/// contract with `input_size` taken from a fixed square input (else the default's 224).
-///
-/// PyTorch's exporter in eval mode folds BatchNorm into the preceding convolution and renames
-/// the results (`onnx::Conv_123`); such a file has no `bn1.*` tensors and is refused with
-/// the name of the first missing one. Export with `training=torch.onnx.TrainingMode.PRESERVE`
-/// (or `do_constant_folding=False`) from a model in eval mode to keep the names.
+/// Reads a ResNet-18 from an ONNX file (see [`super::net::read_onnx`]); a file of another
+/// architecture is refused with its name.
 pub fn load_onnx(path: &Path, device: &Device) -> Result<(Resnet18, ModelContract), TrainError> {
-    let shown = path.display().to_string();
-    let bytes = Bytes::from(std::fs::read(path).map_err(|source| {
-        crate::policy::onnx::OnnxError::Read {
-            path: shown.clone(),
-            source,
-        }
-    })?);
-    let summary = inspect_bytes(bytes.clone(), &shown)?;
-    let contract = match summary.contract() {
-        Ok(Some(c)) => c,
-        Ok(None) => {
-            let dims: Vec<i64> = summary
-                .inputs
-                .first()
-                .map(|input| {
-                    input
-                        .dims
-                        .iter()
-                        .map(|d| match d {
-                            Dim::Fixed(n) => *n,
-                            _ => -1,
-                        })
-                        .collect()
-                })
-                .unwrap_or_default();
-            ModelContract::default().for_unlabelled_input(&dims)
-        }
-        Err(source) => {
-            return Err(TrainError::Contract {
-                path: shown,
-                source,
-            });
-        }
-    };
-    let model =
-        ModelProto::decode(bytes).map_err(|source| crate::policy::onnx::OnnxError::Decode {
-            path: shown.clone(),
-            source,
-        })?;
-    let initializers = model.graph.map(|g| g.initializer).unwrap_or_default();
-    let weights = weights_from_initializers(&initializers)?;
-    Ok((Resnet18::from_weights(&weights, device)?, contract))
-}
-
-/// The prefix in front of torchvision's names: `""` when `conv1.weight` is present as is,
-/// else the `P` (ending in `.`) for which both `Pconv1.weight` and `Pfc.weight` exist.
-fn common_prefix(names: &BTreeSet<&str>) -> String {
-    if names.contains("conv1.weight") {
-        return String::new();
+    let (weights, contract) = read_onnx(path)?;
+    match weights {
+        NetWeights::Resnet18(w) => Ok((Resnet18::from_weights(&w, device)?, contract)),
+        other => Err(TrainError::Data {
+            path: path.display().to_string(),
+            reason: format!(
+                "a {} model; this needs a ResNet-18 (train ddpg supports ResNet-18 only so far)",
+                other.arch().title()
+            ),
+        }),
     }
-    names
-        .iter()
-        .filter_map(|n| n.strip_suffix("conv1.weight"))
-        .filter(|p| p.ends_with('.') && names.contains(format!("{p}fc.weight").as_str()))
-        .min_by_key(|p| p.len())
-        .unwrap_or("")
-        .to_string()
-}
-
-/// The ResNet-18 tensors among `initializers`, under their torchvision names.
-pub fn weights_from_initializers(
-    initializers: &[TensorProto],
-) -> Result<Resnet18Weights, TrainError> {
-    const FLOAT: i32 = 1;
-    const EXTERNAL: i32 = 1;
-    let wanted: BTreeSet<String> = Resnet18Weights::param_shapes(1)
-        .into_iter()
-        .map(|(n, _)| n)
-        .collect();
-    let names: BTreeSet<&str> = initializers.iter().map(|t| t.name.as_str()).collect();
-    let prefix = common_prefix(&names);
-    let mut tensors = BTreeMap::new();
-    for t in initializers {
-        let Some(name) = t.name.strip_prefix(prefix.as_str()) else {
-            continue;
-        };
-        if !wanted.contains(name) {
-            continue;
-        }
-        let bad = |reason: &str| TrainError::TensorData {
-            name: t.name.clone(),
-            reason: reason.to_string(),
-        };
-        if t.data_type != FLOAT {
-            return Err(bad(&format!(
-                "element type {} is not float32 (1)",
-                t.data_type
-            )));
-        }
-        if t.data_location == EXTERNAL || !t.external_data.is_empty() {
-            return Err(bad("external data files are not supported"));
-        }
-        let values: Vec<f32> = if t.raw_data.is_empty() {
-            t.float_data.clone()
-        } else {
-            if t.raw_data.len() % 4 != 0 {
-                return Err(bad("raw_data length is not a multiple of 4"));
-            }
-            t.raw_data
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
-        };
-        tensors.insert(name.to_string(), (t.dims.clone(), values));
-    }
-    Ok(Resnet18Weights { tensors })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn prefix_is_found_and_stripped() {
-        let names: BTreeSet<&str> = [
-            "model.conv1.weight",
-            "model.layer1.0.conv1.weight",
-            "model.fc.weight",
-        ]
-        .into_iter()
-        .collect();
-        assert_eq!(common_prefix(&names), "model.");
-        let names: BTreeSet<&str> = ["conv1.weight", "layer1.0.conv1.weight", "fc.weight"]
-            .into_iter()
-            .collect();
-        assert_eq!(common_prefix(&names), "");
-    }
 
     #[test]
     fn missing_and_misshapen_tensors_are_named() {
@@ -504,33 +281,5 @@ mod tests {
         assert_eq!(m.features(x.clone()).dims(), [2, FEATURES]);
         assert_eq!(m.forward(x).dims(), [2, 3]);
         assert_eq!(m.to_weights().unwrap(), w);
-    }
-
-    #[test]
-    fn load_onnx_strips_a_common_prefix_and_ignores_other_initializers() {
-        use crate::policy::onnx::{resnet18_model, write_model};
-        let w = Resnet18Weights::random(2, 4);
-        let contract = ModelContract {
-            input_size: 32,
-            ..ModelContract::default()
-        };
-        let mut model = resnet18_model(32, &w, &contract, "t").unwrap();
-        let graph = model.graph.as_mut().unwrap();
-        for t in &mut graph.initializer {
-            t.name = format!("model.{}", t.name);
-        }
-        graph.initializer.push(TensorProto {
-            name: "model.bn1.num_batches_tracked".into(),
-            data_type: 7, // int64
-            raw_data: Bytes::from(vec![0u8; 8]),
-            ..TensorProto::default()
-        });
-        model.metadata_props.clear();
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("prefixed.onnx");
-        write_model(&path, &model).unwrap();
-        let (net, c) = load_onnx(&path, &Device::flex()).unwrap();
-        assert_eq!(c.input_size, 32, "from the input shape without metadata");
-        assert_eq!(net.to_weights().unwrap(), w);
     }
 }

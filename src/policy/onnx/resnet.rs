@@ -41,7 +41,7 @@ const BN_EPSILON: f32 = 1e-5;
 /// `num_batches_tracked` buffers are not used for inference and not needed.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Resnet18Weights {
-    pub tensors: BTreeMap<String, (Vec<i64>, Vec<f32>)>,
+    pub tensors: TensorMap,
 }
 
 impl Resnet18Weights {
@@ -114,36 +114,82 @@ impl Resnet18Weights {
     /// uniform in `±1/sqrt(512)` (PyTorch's `nn.Linear` default) from ChaCha8 seeded with
     /// `seed`; every other tensor is kept as it is.
     pub fn with_fresh_head(&self, num_outputs: usize, seed: u64) -> Self {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let bound = linear_bound();
-        let n = num_outputs as i64;
-        let weight = uniform(&mut rng, bound, num_outputs * FC_IN as usize);
-        let bias = uniform(&mut rng, bound, num_outputs);
         let mut tensors = self.tensors.clone();
-        tensors.insert("fc.weight".into(), (vec![n, FC_IN], weight));
-        tensors.insert("fc.bias".into(), (vec![n], bias));
+        fresh_linear(&mut tensors, "fc", FC_IN as usize, num_outputs, seed);
         Self { tensors }
     }
 
     /// `num_outputs` from the shape of `fc.weight` (`[N,512]`).
     pub fn num_outputs(&self) -> Result<usize, OnnxError> {
-        let expected = "[N,512]".to_string();
-        let (dims, _) = self
-            .tensors
-            .get("fc.weight")
-            .ok_or_else(|| OnnxError::MissingWeight {
-                name: "fc.weight".into(),
-                expected: expected.clone(),
-            })?;
-        match dims.as_slice() {
-            [n, FC_IN] if *n >= 1 => Ok(*n as usize),
-            _ => Err(OnnxError::WeightShape {
-                name: "fc.weight".into(),
-                expected,
-                found: shape_to_string(dims),
-            }),
-        }
+        linear_outputs(&self.tensors, "fc.weight", FC_IN as usize)
     }
+}
+
+/// Named tensors: shape and values.
+pub type TensorMap = BTreeMap<String, (Vec<i64>, Vec<f32>)>;
+
+/// `N` from the shape `[N,features]` of the linear layer's weight `name`.
+pub(crate) fn linear_outputs(
+    tensors: &TensorMap,
+    name: &str,
+    features: usize,
+) -> Result<usize, OnnxError> {
+    let expected = format!("[N,{features}]");
+    let (dims, _) = tensors.get(name).ok_or_else(|| OnnxError::MissingWeight {
+        name: name.into(),
+        expected: expected.clone(),
+    })?;
+    match dims.as_slice() {
+        [n, f] if *n >= 1 && *f == features as i64 => Ok(*n as usize),
+        _ => Err(OnnxError::WeightShape {
+            name: name.into(),
+            expected,
+            found: shape_to_string(dims),
+        }),
+    }
+}
+
+/// Replaces the linear layer `{name}.weight` `[outputs,features]` and `{name}.bias`
+/// `[outputs]` with PyTorch's `nn.Linear` initialisation, uniform in `±1/sqrt(features)`,
+/// the weight then the bias drawn from ChaCha8 seeded with `seed`.
+pub(crate) fn fresh_linear(
+    tensors: &mut TensorMap,
+    name: &str,
+    features: usize,
+    outputs: usize,
+    seed: u64,
+) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let bound = 1.0 / (features as f32).sqrt();
+    let weight = uniform(&mut rng, bound, outputs * features);
+    let bias = uniform(&mut rng, bound, outputs);
+    let n = outputs as i64;
+    tensors.insert(format!("{name}.weight"), (vec![n, features as i64], weight));
+    tensors.insert(format!("{name}.bias"), (vec![n], bias));
+}
+
+/// Adds every tensor of `shapes` from `tensors` as an initializer, in `shapes`' order; the
+/// error names the first one missing or of another shape.
+pub(crate) fn add_checked_initializers(
+    g: &mut GraphBuilder,
+    shapes: Vec<(String, Vec<i64>)>,
+    tensors: &TensorMap,
+) -> Result<(), OnnxError> {
+    for (name, dims) in shapes {
+        let (found, values) = tensors.get(&name).ok_or_else(|| OnnxError::MissingWeight {
+            name: name.clone(),
+            expected: shape_to_string(&dims),
+        })?;
+        if *found != dims {
+            return Err(OnnxError::WeightShape {
+                name,
+                expected: shape_to_string(&dims),
+                found: shape_to_string(found),
+            });
+        }
+        g.initializer_f32(&name, &dims, values)?;
+    }
+    Ok(())
 }
 
 /// PyTorch's `nn.Linear` default initialisation bound for `fc`: `1/sqrt(512)`.
@@ -151,14 +197,14 @@ fn linear_bound() -> f32 {
     1.0 / (FC_IN as f32).sqrt()
 }
 
-fn uniform(rng: &mut impl Rng, bound: f32, len: usize) -> Vec<f32> {
+pub(crate) fn uniform(rng: &mut impl Rng, bound: f32, len: usize) -> Vec<f32> {
     match Uniform::new(-bound, bound) {
         Ok(d) => d.sample_iter(rng).take(len).collect(),
         Err(_) => vec![0.0; len],
     }
 }
 
-fn kaiming_normal(rng: &mut impl Rng, std: f32, len: usize) -> Vec<f32> {
+pub(crate) fn kaiming_normal(rng: &mut impl Rng, std: f32, len: usize) -> Vec<f32> {
     match Normal::new(0.0, std) {
         Ok(d) => d.sample_iter(rng).take(len).collect(),
         Err(_) => vec![0.0; len],
@@ -198,24 +244,11 @@ pub fn resnet18_model(
     }
     let num_outputs = weights.num_outputs()?;
     let mut g = GraphBuilder::new("resnet18");
-    for (name, dims) in Resnet18Weights::param_shapes(num_outputs) {
-        let (found, values) =
-            weights
-                .tensors
-                .get(&name)
-                .ok_or_else(|| OnnxError::MissingWeight {
-                    name: name.clone(),
-                    expected: shape_to_string(&dims),
-                })?;
-        if *found != dims {
-            return Err(OnnxError::WeightShape {
-                name,
-                expected: shape_to_string(&dims),
-                found: shape_to_string(found),
-            });
-        }
-        g.initializer_f32(&name, &dims, values)?;
-    }
+    add_checked_initializers(
+        &mut g,
+        Resnet18Weights::param_shapes(num_outputs),
+        &weights.tensors,
+    )?;
 
     let s = i64::from(input_size);
     g.input_f32("input", &[1.into(), 3.into(), s.into(), s.into()]);

@@ -6,8 +6,9 @@
 //! integer kernel reads or writes it:
 //! - the data input of every Conv with constant weights;
 //! - both inputs of every Add;
-//! - the output of such a Conv or Add, or of the ReLU right after it when that ReLU is its
-//!   only reader (the ReLU then folds into the quantization);
+//! - the output of such a Conv or Add, or of the ReLU (or ReLU6, `Clip`: EfficientNet-Lite0)
+//!   right after it when that is its only reader (it then folds into the quantization: a
+//!   range calibrated after it starts at 0 and, for ReLU6, ends at 6 at most);
 //! - the output of a MaxPool whose input is quantized, with the input's own scale, so ONNX
 //!   Runtime runs the pooling on the integers.
 //!
@@ -39,7 +40,10 @@ pub fn activations(graph: &GraphProto) -> Vec<Activation> {
     // `v`, or the ReLU output that is `v`'s only reader.
     let after_relu = |v: &str| -> String {
         match readers.get(v).map(Vec::as_slice) {
-            Some([r]) if graph.node[*r].op_type == "Relu" && !graph_outputs.contains(v) => {
+            Some([r])
+                if matches!(graph.node[*r].op_type.as_str(), "Relu" | "Clip")
+                    && !graph_outputs.contains(v) =>
+            {
                 graph.node[*r].output[0].clone()
             }
             _ => v.to_string(),

