@@ -241,6 +241,10 @@ pub fn main(cmd: ModelCommand) -> anyhow::Result<ExitCode> {
                 ),
                 Err(e) => println!("  contract   INVALID: {e}"),
             }
+            if let Some(a) = s.metadata.get(jetpilot::policy::onnx::resnet::META_ARCH) {
+                let known = Arch::from_name(a).map_or("not one this build knows", Arch::title);
+                println!("  arch       {a} ({known})");
+            }
             if let Some(q) = s
                 .metadata
                 .get(jetpilot::policy::quantize::META_QUANTIZATION)

@@ -118,7 +118,8 @@ pub struct IlArgs {
     #[arg(long)]
     freeze_bn: bool,
     /// The backbone's learning rate as a share of --lr (the output layer always has --lr);
-    /// below 1 keeps more of a pretrained backbone.
+    /// below 1 keeps more of a pretrained backbone; 0 freezes it, BatchNorm statistics
+    /// included, and trains the output layer alone (a linear probe, several times faster).
     #[arg(long, default_value_t = 1.0, value_name = "SHARE")]
     backbone_lr: f64,
     /// Network input size (default: the config's `model.input_size`).

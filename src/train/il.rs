@@ -62,7 +62,8 @@ pub struct IlOptions {
     /// Keep every BatchNorm's running statistics as they are (the start's): the network
     /// normalises with them in training too. For a pretrained start on few frames.
     pub freeze_bn: bool,
-    /// The backbone's learning rate as a share of `lr` (the output layer always has `lr`).
+    /// The backbone's learning rate as a share of `lr` (the output layer always has `lr`);
+    /// 0 freezes the backbone and its BatchNorm statistics (a linear probe).
     pub backbone_lr: f64,
     pub epochs: usize,
     pub batch: usize,
@@ -296,8 +297,10 @@ fn initial_model(opts: &IlOptions, device: &Device) -> Result<(Net, IlState), Tr
         param_ids: Vec::new(),
     };
     let size = Some(opts.contract.input_size);
+    // A frozen backbone keeps its statistics too (else its BatchNorms would drift on batch
+    // statistics no gradient asked for).
     let finish = |net: Net| {
-        if opts.freeze_bn {
+        if opts.freeze_bn || opts.backbone_lr == 0.0 {
             net.freeze_batch_norm_statistics()
         } else {
             net
@@ -509,10 +512,18 @@ fn train_step(
     lr: f64,
     backbone_lr: f64,
 ) -> Result<(Net, f64), TrainError> {
-    let loss = mse(model.forward(x), y);
+    // A frozen backbone (0): its features are detached, so the backward pass stops at the
+    // output layer (a linear probe: about a forward pass's cost per step).
+    let frozen = backbone_lr == 0.0;
+    let pred = if frozen {
+        model.head().forward(model.features(x).detach()) // [B,N]
+    } else {
+        model.forward(x) // [B,N]
+    };
+    let loss = mse(pred, y);
     let value = scalar(loss.clone().detach())?;
     let mut grads = loss.backward();
-    if backbone_lr == 1.0 {
+    if frozen || backbone_lr == 1.0 {
         let all = GradientsParams::from_grads(grads, &model);
         return Ok((optim.step(lr, model, all), value));
     }
@@ -903,6 +914,69 @@ mod tests {
         assert!(
             err.contains("--mix-share must be in 0..0.95") && err.contains("19 of them"),
             "{err}"
+        );
+    }
+
+    /// EfficientNet-Lite0 trains and exports like ResNet-18; a frozen backbone (`backbone_lr`
+    /// 0) keeps every backbone tensor, BatchNorm statistics included, and moves the head; a
+    /// backbone at a tenth of the rate moves less than one at the full rate.
+    #[test]
+    fn lite0_trains_and_a_frozen_backbone_stays_put() {
+        let size = 32u32;
+        let data = Dataset::random(size, 8, 2);
+        let contract = ModelContract {
+            input_size: size,
+            ..ModelContract::default()
+        };
+        let labels = LabelMap::new(OutputKind::Xy, &Default::default());
+        let dir = tempfile::tempdir().unwrap();
+        let run = |out: &str, backbone_lr: f64| {
+            let opts = IlOptions {
+                arch: Arch::EfficientNetLite0,
+                epochs: 1,
+                batch: 4,
+                test_fraction: 0.25,
+                progress: false,
+                backbone_lr,
+                ..IlOptions::paper(dir.path().join(out), contract.clone(), labels)
+            };
+            train(&data, &opts, |_| {}).unwrap();
+            let (w, c) = super::super::read_onnx(&dir.path().join(out).join("last.onnx")).unwrap();
+            assert_eq!((w.arch(), c.input_size), (Arch::EfficientNetLite0, size));
+            w
+        };
+        let start = NetWeights::random(Arch::EfficientNetLite0, 2, 0);
+        // Largest change of the backbone's tensors and of the head's.
+        let moved = |w: &NetWeights, head: bool| {
+            w.tensors()
+                .iter()
+                .filter(|(n, _)| n.starts_with("_fc.") == head)
+                .flat_map(|(n, (_, v))| {
+                    v.iter()
+                        .zip(&start.tensors()[n].1)
+                        .map(|(a, b)| (a - b).abs())
+                })
+                .fold(0.0f32, f32::max)
+        };
+        let frozen = run("frozen", 0.0);
+        assert_eq!(moved(&frozen, false), 0.0, "frozen backbone");
+        assert!(moved(&frozen, true) > 0.0, "the head trains");
+        let full = run("full", 1.0);
+        let tenth = run("tenth", 0.1);
+        let conv = "_blocks.3._expand_conv.weight";
+        let change = |w: &NetWeights| {
+            w.tensors()[conv]
+                .1
+                .iter()
+                .zip(&start.tensors()[conv].1)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max)
+        };
+        assert!(
+            0.0 < change(&tenth) && change(&tenth) < change(&full),
+            "{} vs {}",
+            change(&tenth),
+            change(&full)
         );
     }
 

@@ -26,6 +26,9 @@ use crate::policy::onnx::{Arch, Dim, NetWeights, OnnxError, TensorMap, inspect_b
 pub const DEFAULT_BN_MOMENTUM: f64 = 0.1;
 
 /// A policy network of either architecture.
+// One per run, moved once per training step: a 1.3 kB move is nothing beside the step, and
+// burn's derive takes the variants as they are.
+#[allow(clippy::large_enum_variant)]
 #[derive(Module, Debug)]
 pub enum Net {
     Resnet18(Resnet18),
