@@ -1083,10 +1083,14 @@ mod tests {
         };
         let err = train(&data, &other_seed, |_| {}).unwrap_err().to_string();
         assert!(err.contains("--seed 0, now 9"), "{err}");
-        let restarted = (reset[1].0 - straight[1].0).abs() / straight[1].0;
+        // Judged on the model after the epoch (its held-out loss) as well as on the epoch's
+        // mean training loss, which averages in the steps before the moments matter: measured
+        // at f1b48a3, 0.5 % on the training loss and 68 % on the held-out one.
+        let change = |a: f64, b: f64| (a - b).abs() / b;
+        let restarted = change(reset[1].0, straight[1].0).max(change(reset[1].1, straight[1].1));
         assert!(
             restarted > 0.05,
-            "restarting Adam changed epoch 2 by only {restarted}"
+            "restarting Adam changed epoch 2 by only {restarted}: {reset:?} vs {straight:?}"
         );
     }
 }
