@@ -206,8 +206,8 @@ const FEW_HELD_OUT: usize = 25;
 fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     let cfg = config(args.config.as_ref())?;
     let mut contract: ModelContract = cfg.model.fallback_contract();
-    let (init, arch) = super::train_init::resolve(args.init.as_deref(), args.arch.map(Into::into))?;
-    super::train_init::adopt_normalisation(init.as_deref(), arch, &mut contract)?;
+    let start = super::train_init::resolve(args.init.as_deref(), args.arch.map(Into::into))?;
+    super::train_init::adopt_normalisation(&start, &mut contract);
     if let Some(s) = args.input_size {
         contract.input_size = s;
     }
@@ -257,8 +257,8 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         "demonstrations decoded"
     );
     let mut opts = IlOptions::paper(args.out.clone(), contract, labels);
-    opts.init = init;
-    opts.arch = arch;
+    opts.init = start.init;
+    opts.arch = start.arch;
     if let Some(m) = args.bn_momentum {
         anyhow::ensure!(
             (0.0..=1.0).contains(&m),

@@ -7,19 +7,35 @@ use jetpilot::policy::ModelContract;
 use jetpilot::policy::onnx::Arch;
 use jetpilot::policy::pytorch;
 
+/// Where a run starts: the file, its architecture, and an ONNX file's contract.
+pub struct Start {
+    pub init: Option<PathBuf>,
+    pub arch: Arch,
+    pub contract: Option<ModelContract>,
+}
+
 /// `--init imagenet` becomes the cached ImageNet file of the architecture (Lite0 unless
 /// `--arch` says otherwise); a `.pth` file keeps `--arch` (default ResNet-18); an ONNX
 /// file's architecture is its own, and an `--arch` that disagrees is refused.
-pub fn resolve(init: Option<&Path>, arch: Option<Arch>) -> anyhow::Result<(Option<PathBuf>, Arch)> {
+pub fn resolve(init: Option<&Path>, arch: Option<Arch>) -> anyhow::Result<Start> {
+    let state_dict = |init: PathBuf, arch: Arch| Start {
+        init: Some(init),
+        arch,
+        contract: None,
+    };
     match init {
-        None => Ok((None, arch.unwrap_or(Arch::Resnet18))),
+        None => Ok(Start {
+            init: None,
+            arch: arch.unwrap_or(Arch::Resnet18),
+            contract: None,
+        }),
         Some(p) if p == Path::new("imagenet") => {
             let arch = arch.unwrap_or(Arch::EfficientNetLite0);
-            Ok((Some(pytorch::imagenet_weights(arch)?), arch))
+            Ok(state_dict(pytorch::imagenet_weights(arch)?, arch))
         }
-        Some(p) if is_pth(p) => Ok((Some(p.to_path_buf()), arch.unwrap_or(Arch::Resnet18))),
+        Some(p) if is_pth(p) => Ok(state_dict(p.to_path_buf(), arch.unwrap_or(Arch::Resnet18))),
         Some(p) => {
-            let (weights, _) = jetpilot::train::read_onnx(p)?;
+            let (weights, contract) = jetpilot::train::read_onnx(p)?;
             let own = weights.arch();
             if let Some(a) = arch.filter(|a| *a != own) {
                 anyhow::bail!(
@@ -29,27 +45,28 @@ pub fn resolve(init: Option<&Path>, arch: Option<Arch>) -> anyhow::Result<(Optio
                     a.name()
                 );
             }
-            Ok((Some(p.to_path_buf()), own))
+            Ok(Start {
+                init: Some(p.to_path_buf()),
+                arch: own,
+                contract: Some(contract),
+            })
         }
     }
 }
 
 /// Pretrained weights expect the normalisation they were trained with: a state dict gets
-/// the architecture's ImageNet normalisation, an ONNX file with a contract its own
-/// channel order, mean and std. Said in the log when it changes the config's.
-pub fn adopt_normalisation(
-    init: Option<&Path>,
-    arch: Arch,
-    contract: &mut ModelContract,
-) -> anyhow::Result<()> {
-    let Some(path) = init else { return Ok(()) };
+/// the architecture's ImageNet normalisation, an ONNX file its own channel order, mean and
+/// std. Said in the log when it changes the config's.
+pub fn adopt_normalisation(start: &Start, contract: &mut ModelContract) {
+    let Some(path) = &start.init else { return };
     let before = contract.clone();
-    if is_pth(path) {
-        (contract.mean, contract.std) = arch.imagenet_normalisation();
-    } else if let Some(c) = read_contract(path)? {
-        contract.channel_order = c.channel_order;
-        contract.mean = c.mean;
-        contract.std = c.std;
+    match &start.contract {
+        Some(c) => {
+            contract.channel_order = c.channel_order;
+            contract.mean = c.mean;
+            contract.std = c.std;
+        }
+        None => (contract.mean, contract.std) = start.arch.imagenet_normalisation(),
     }
     if *contract != before {
         tracing::info!(
@@ -57,12 +74,6 @@ pub fn adopt_normalisation(
             "input normalisation from the start's weights: {contract}"
         );
     }
-    Ok(())
-}
-
-fn read_contract(path: &Path) -> anyhow::Result<Option<ModelContract>> {
-    let s = jetpilot::policy::onnx::inspect_file(path)?;
-    Ok(s.contract()?)
 }
 
 fn is_pth(p: &Path) -> bool {

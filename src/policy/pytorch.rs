@@ -20,7 +20,7 @@ use std::path::Path;
 
 use pytorch_reader::{DType, PytorchReader};
 
-use super::onnx::{Arch, NetWeights, TensorMap};
+use super::onnx::{Arch, NetWeights, TensorMap, shape_to_string};
 
 /// Why a `.pth` file cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -151,7 +151,7 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
     let names: BTreeSet<&str> = tensors.keys().map(String::as_str).collect();
     let shapes = arch.param_shapes(1);
     let first = &shapes[0].0;
-    let Some(prefix) = prefix_of(&names, first) else {
+    let Some(prefix) = arch.prefix_in(names.iter().copied()) else {
         return Err(match Arch::detect(names.iter().copied()) {
             Some(other) if other != arch => PytorchError::WrongArch {
                 path: shown,
@@ -163,7 +163,7 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
             _ => PytorchError::Missing {
                 path: shown,
                 name: first.clone(),
-                expected: shape_string(&shapes[0].1),
+                expected: shape_to_string(&shapes[0].1),
                 hint: listing(&names),
             },
         });
@@ -176,7 +176,7 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
             return Err(PytorchError::Missing {
                 path: shown,
                 name: key,
-                expected: shape_string(&expected),
+                expected: shape_to_string(&expected),
                 hint: listing(&names),
             });
         };
@@ -191,13 +191,13 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
             let expected = if name == head_weight {
                 format!("[N,{}]", arch.features())
             } else {
-                shape_string(&expected)
+                shape_to_string(&expected)
             };
             return Err(PytorchError::Shape {
                 path: shown,
                 name: key,
                 expected,
-                found: shape_string(&dims),
+                found: shape_to_string(&dims),
             });
         }
         let bad = |reason: String| PytorchError::Data {
@@ -230,21 +230,10 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
             path: shown,
             name: format!("{prefix}{}.bias", arch.head()),
             expected: format!("[{n}]"),
-            found: shape_string(bias),
+            found: shape_to_string(bias),
         });
     }
     Ok(weights)
-}
-
-/// The prefix (`""`, `"module."`, ...) in front of `first` in `names`: the shortest one
-/// that is empty or ends in a dot.
-fn prefix_of(names: &BTreeSet<&str>, first: &str) -> Option<String> {
-    names
-        .iter()
-        .filter_map(|n| n.strip_suffix(first))
-        .filter(|p| p.is_empty() || p.ends_with('.'))
-        .min_by_key(|p| p.len())
-        .map(str::to_string)
 }
 
 /// Little-endian floats of any width as f32; `None` for other element types.
@@ -291,11 +280,6 @@ fn f16_to_f32(h: u16) -> f32 {
         (e, f) => sign | ((e + 112) << 23) | (f << 13),
     };
     f32::from_bits(bits)
-}
-
-fn shape_string(dims: &[i64]) -> String {
-    let parts: Vec<String> = dims.iter().map(i64::to_string).collect();
-    format!("[{}]", parts.join(","))
 }
 
 /// The first few names in the file, for a person to see what it holds.
@@ -346,14 +330,17 @@ mod tests {
             .into_iter()
             .collect();
         assert_eq!(
-            prefix_of(&names, "conv1.weight").as_deref(),
+            Arch::Resnet18.prefix_in(names.iter().copied()).as_deref(),
             Some("module.")
         );
         let names: BTreeSet<&str> = ["conv1.weight", "layer1.0.conv1.weight"]
             .into_iter()
             .collect();
-        assert_eq!(prefix_of(&names, "conv1.weight").as_deref(), Some(""));
+        assert_eq!(
+            Arch::Resnet18.prefix_in(names.iter().copied()).as_deref(),
+            Some("")
+        );
         let names: BTreeSet<&str> = ["xconv1.weight"].into_iter().collect();
-        assert_eq!(prefix_of(&names, "conv1.weight"), None);
+        assert_eq!(Arch::Resnet18.prefix_in(names.iter().copied()), None);
     }
 }

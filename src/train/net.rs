@@ -221,21 +221,9 @@ pub fn load_net(
     ))
 }
 
-/// The prefix in front of `arch`'s names: `""` when its first tensor is present as is, else
-/// the shortest `P` (ending in `.`) for which both that tensor and the head's weight exist.
+/// The prefix in front of `arch`'s names ([`Arch::prefix_in`]), `""` when there is none.
 fn common_prefix(names: &BTreeSet<&str>, arch: Arch) -> String {
-    let first = arch.param_shapes(1)[0].0.clone();
-    if names.contains(first.as_str()) {
-        return String::new();
-    }
-    let head = format!("{}.weight", arch.head());
-    names
-        .iter()
-        .filter_map(|n| n.strip_suffix(first.as_str()))
-        .filter(|p| p.ends_with('.') && names.contains(format!("{p}{head}").as_str()))
-        .min_by_key(|p| p.len())
-        .unwrap_or("")
-        .to_string()
+    arch.prefix_in(names.iter().copied()).unwrap_or_default()
 }
 
 /// `arch`'s tensors among `initializers`, under their own names.

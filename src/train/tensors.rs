@@ -11,7 +11,7 @@ use burn::nn::{BatchNorm, Linear, PaddingConfig2d};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::TrainError;
-use crate::policy::onnx::TensorMap;
+use crate::policy::onnx::{TensorMap, shape_to_string};
 
 /// Looks up tensors by name and checks them against the expected shapes.
 pub struct Source<'a> {
@@ -36,13 +36,13 @@ impl Source<'_> {
             .get(name)
             .ok_or_else(|| TrainError::MissingTensor {
                 name: name.to_string(),
-                expected: shape_string(expected),
+                expected: shape_to_string(expected),
             })?;
         if dims != expected || dims.len() != D {
             return Err(TrainError::TensorShape {
                 name: name.to_string(),
-                expected: shape_string(expected),
-                found: shape_string(dims),
+                expected: shape_to_string(expected),
+                found: shape_to_string(dims),
             });
         }
         let shape: Vec<usize> = dims.iter().map(|&d| d as usize).collect();
@@ -53,7 +53,7 @@ impl Source<'_> {
                 reason: format!(
                     "{} values, its shape {} needs {count}",
                     values.len(),
-                    shape_string(dims)
+                    shape_to_string(dims)
                 ),
             });
         }
@@ -156,9 +156,4 @@ pub fn put_linear(out: &mut TensorMap, name: &str, fc: &Linear) -> Result<(), Tr
         put(out, &format!("{name}.bias"), bias.val())?;
     }
     Ok(())
-}
-
-pub fn shape_string(dims: &[i64]) -> String {
-    let parts: Vec<String> = dims.iter().map(i64::to_string).collect();
-    format!("[{}]", parts.join(","))
 }

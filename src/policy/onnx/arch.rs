@@ -77,16 +77,24 @@ impl Arch {
         }
     }
 
-    /// The architecture whose first tensor (`conv1.weight`, `_conv_stem.weight`) is among
-    /// `names`, each possibly behind a common prefix such as `module.`.
+    /// The prefix (`""`, `"module."`, `"model."`, ...) in front of this architecture's first
+    /// tensor (`conv1.weight`, `_conv_stem.weight`) among `names`: the shortest that is
+    /// empty or ends in a dot; `None` when the tensor is not there.
+    pub fn prefix_in<'a>(self, names: impl IntoIterator<Item = &'a str>) -> Option<String> {
+        let first = self.param_shapes(1)[0].0.clone();
+        names
+            .into_iter()
+            .filter_map(|n| n.strip_suffix(first.as_str()))
+            .filter(|p| p.is_empty() || p.ends_with('.'))
+            .min_by_key(|p| p.len())
+            .map(str::to_string)
+    }
+
+    /// The architecture whose first tensor is among `names` ([`Arch::prefix_in`]).
     pub fn detect<'a>(names: impl IntoIterator<Item = &'a str> + Clone) -> Option<Arch> {
-        Self::ALL.into_iter().find(|arch| {
-            let first = arch.param_shapes(1)[0].0.clone();
-            names.clone().into_iter().any(|n| {
-                n.strip_suffix(first.as_str())
-                    .is_some_and(|p| p.is_empty() || p.ends_with('.'))
-            })
-        })
+        Self::ALL
+            .into_iter()
+            .find(|arch| arch.prefix_in(names.clone()).is_some())
     }
 }
 

@@ -61,7 +61,7 @@ pub fn dims_to_string(dims: &[Dim]) -> String {
 }
 
 /// `[64,3,7,7]` for fixed dims.
-pub(crate) fn shape_to_string(dims: &[i64]) -> String {
+pub fn shape_to_string(dims: &[i64]) -> String {
     let parts: Vec<String> = dims.iter().map(i64::to_string).collect();
     format!("[{}]", parts.join(","))
 }

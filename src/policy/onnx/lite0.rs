@@ -29,9 +29,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::OnnxError;
-use super::graph::{Dim, GraphBuilder, attr_float, attr_int, attr_ints, element_count};
+use super::graph::{Dim, GraphBuilder, attr_int, element_count};
 use super::proto::ModelProto;
-use super::resnet::{META_ARCH, add_checked_initializers, fresh_linear, kaiming_normal, uniform};
+use super::resnet::{
+    META_ARCH, add_checked_initializers, bn_node, conv_node, fresh_linear, kaiming_normal, uniform,
+};
 use crate::policy::contract::ModelContract;
 
 /// BatchNorm epsilon of every layer (TensorFlow's default, kept by the port).
@@ -322,28 +324,8 @@ fn conv_bn(
 ) -> String {
     let (before, after) = same_padding(size, kernel, stride);
     let [k, s, b, a, groups] = [kernel, stride, before, after, groups].map(|v| v as i64);
-    let attrs = vec![
-        attr_ints("kernel_shape", &[k, k]),
-        attr_ints("strides", &[s, s]),
-        attr_ints("pads", &[b, b, a, a]),
-        attr_ints("dilations", &[1, 1]),
-        attr_int("group", groups),
-    ];
-    let weight = format!("{conv}.weight");
-    g.node("Conv", &[input, &weight], &[conv], attrs);
-    let p: Vec<String> = ["weight", "bias", "running_mean", "running_var"]
-        .iter()
-        .map(|s| format!("{bn}.{s}"))
-        .collect();
-    g.node(
-        "BatchNormalization",
-        &[conv, &p[0], &p[1], &p[2], &p[3]],
-        &[bn],
-        vec![
-            attr_float("epsilon", BN_EPSILON),
-            attr_float("momentum", 0.9),
-        ],
-    );
+    conv_node(g, conv, input, k, s, [b, b, a, a], groups);
+    bn_node(g, bn, conv, BN_EPSILON);
     bn.to_string()
 }
 

@@ -28,7 +28,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use prost::Message;
 
 pub use arch::{Arch, NetWeights};
-pub use graph::{Dim, GraphBuilder, attr_float, attr_int, attr_ints};
+pub use graph::{Dim, GraphBuilder, attr_float, attr_int, attr_ints, shape_to_string};
 pub use inspect::{ModelSummary, TensorInfo, inspect_bytes, inspect_file};
 pub use lite0::{Lite0Weights, lite0_model};
 pub use proto::ModelProto;

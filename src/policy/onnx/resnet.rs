@@ -293,19 +293,39 @@ pub fn resnet18_model(
 
 /// `name = Conv(input, name.weight)`: square kernel `k`, stride, symmetric padding, no bias.
 fn conv(g: &mut GraphBuilder, name: &str, input: &str, k: i64, stride: i64, pad: i64) {
+    conv_node(g, name, input, k, stride, [pad, pad, pad, pad], 1);
+}
+
+/// `name = Conv(input, name.weight)` without bias: square kernel `k`, `stride`, `pads` in
+/// ONNX's order (top, left, bottom, right), `group` groups.
+pub(crate) fn conv_node(
+    g: &mut GraphBuilder,
+    name: &str,
+    input: &str,
+    k: i64,
+    stride: i64,
+    pads: [i64; 4],
+    group: i64,
+) {
     let weight = format!("{name}.weight");
     let attrs = vec![
         attr_ints("kernel_shape", &[k, k]),
         attr_ints("strides", &[stride, stride]),
-        attr_ints("pads", &[pad, pad, pad, pad]),
+        attr_ints("pads", &pads),
         attr_ints("dilations", &[1, 1]),
-        attr_int("group", 1),
+        attr_int("group", group),
     ];
     g.node("Conv", &[input, &weight], &[name], attrs);
 }
 
 /// `name = BatchNormalization(input, name.{weight,bias,running_mean,running_var})`.
 fn bn(g: &mut GraphBuilder, name: &str, input: &str) {
+    bn_node(g, name, input, BN_EPSILON);
+}
+
+/// `name = BatchNormalization(input, name.{weight,bias,running_mean,running_var})` in
+/// inference form with `epsilon`.
+pub(crate) fn bn_node(g: &mut GraphBuilder, name: &str, input: &str, epsilon: f32) {
     let p: Vec<String> = ["weight", "bias", "running_mean", "running_var"]
         .iter()
         .map(|s| format!("{name}.{s}"))
@@ -314,10 +334,7 @@ fn bn(g: &mut GraphBuilder, name: &str, input: &str) {
         "BatchNormalization",
         &[input, &p[0], &p[1], &p[2], &p[3]],
         &[name],
-        vec![
-            attr_float("epsilon", BN_EPSILON),
-            attr_float("momentum", 0.9),
-        ],
+        vec![attr_float("epsilon", epsilon), attr_float("momentum", 0.9)],
     );
 }
 
