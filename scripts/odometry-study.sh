@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The odometry study of `jetpilot poses` (README "Poses for a recording without them"):
+# The odometry study of `jetpilot poses` (docs/guides/collecting-data.md, "Poses for a recording without them"; measured: docs/results/odometry.md):
 # simulated laps recorded with JetBot's fisheye camera, their known poses taken as the
 # truth, and the drift of the estimate (vision + wheels) and of the wheels alone, at
 # 30/15/10 Hz, with noise and blur, and with a wheel model 10 % off.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The paper's experiment where it matters (README, "Trainer: the experiment"): on tracks
+# The paper's experiment where it matters (docs/results/paper-experiment.md): on tracks
 # the imitation policy never saw, pure DDPG vs IL vs IL + DDPG, several seeds, equal wall
 # budgets. Every method is charged its whole wall time: IL + DDPG's budget includes the
 # imitation training it starts from.
@@ -14,7 +14,7 @@
 # Environment overrides, for a reduced run: SEEDS, BUDGET_MIN, IL_EPOCHS, BUDGETS (the
 # report's budgets, a TOML list of minutes), EVAL_S, EVAL_EVERY, METHODS (a subset of
 # "il ilddpg ddpg"), TRACK_FILTER (a grep -E pattern on the track names), ILDDPG_FLAGS,
-# CFG (the sim config), CAMERA (default pinhole: the 120-degree pinhole README's results
+# CFG (the sim config), CAMERA (default pinhole: the 120-degree pinhole the results in docs/results/
 # used; jetbot for JetBot's fisheye, the config's default), BIN (a built jetpilot: no build, so a long run is not disturbed by
 # rebuilding the checkout it runs from), REUSE_IL (the OUT of an earlier run: its demos and
 # imitation policies are reused, each charged the wall time it took then, from
@@ -60,7 +60,7 @@ else
     "narrow mat|--track config/tracks/narrow.toml"
   )
 fi
-# The levers that made IL + DDPG fix the imitation policy's failures (README).
+# The levers that made IL + DDPG fix the imitation policy's failures (docs/results/paper-experiment.md).
 ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 4000 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
 
 METHODS=${METHODS:-il ilddpg ddpg}

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fine-tuning on real frames (README, "Sim-to-real, measured"): `train il` on N real
+# Fine-tuning on real frames (docs/results/sim-to-real.md): `train il` on N real
 # training frames spread evenly over the earlier 80 % by capture time, from a sim-pretrained
 # model and from random weights, each scored
 # on the latest 20 % (`jetpilot score --split-by-time 0.2`, the frames it never saw).

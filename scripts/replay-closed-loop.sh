@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 12's whole loop, where the truth is known (README "Replay a real recording"): a
+# Issue 12's whole loop, where the truth is known (docs/guides/training.md, "Replay a real recording"; measured: docs/results/replay-closed-loop.md): a
 # continuous drive recorded in the simulator as a robot would record it (JetBot's fisheye,
 # a randomised look, wheel-speed noise, recovery swerves recorded too), its poses estimated
 # by `jetpilot poses`, the recorded path as the road (`sim.road = "path"`), IL + DDPG
@@ -30,7 +30,7 @@
 # about 1000 frames, neighbours alike at 30 Hz), DRIVE_S (default 40: 1.2 laps), EVAL_S
 # (the rendered-track tests, default 600), BIN (a built jetpilot with --features train;
 # default: build target/release/jetpilot),
-# ILDDPG_FLAGS (default: the levers of README's experiment with smaller steering noise, no
+# ILDDPG_FLAGS (default: the levers of the paper's experiment, docs/results/paper-experiment.md, with smaller steering noise, no
 # failure resets and the pull towards the imitation policy kept: on the path road the
 # rendered mat's OU 0.3 left the replay's bounds within seconds, and as the pull decayed
 # the actor collapsed), POSES (default "true est": which replays get IL + DDPG), IL_SWERVE

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Zero-shot sim-to-real (README, "Sim-to-real, measured"): xy policies trained only on
+# Zero-shot sim-to-real (docs/results/sim-to-real.md): xy policies trained only on
 # simulated demonstrations, scored on real labelled JetBot frames split by capture time.
 #
 #   scripts/sim-to-real.sh REALDATA [OUT]     (e.g. ../shared/realdata/jetbot_xy_mat)

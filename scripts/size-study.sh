@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Input size x precision (README, "Input size and int8"): for each input size, an imitation
+# Input size x precision (docs/results/input-size.md and docs/results/int8.md): for each input size, an imitation
 # policy from the same demonstrations, recipe and seed, and its int8 copy from
 # `jetpilot model quantize`, then
 #   - driving: `jetpilot eval`, EVAL_S on the default mat, both models;
@@ -50,7 +50,7 @@ else
 fi
 mkdir -p "$OUT"
 
-# README's demonstrations: 331 frames over about 1.2 laps of the default mat, with recoveries.
+# The training recipe's demonstrations (docs/guides/training.md): 331 frames over about 1.2 laps of the default mat, with recoveries.
 if [ ! -d "$OUT/demos" ]; then
   $B sim --config "$CFG" --expert --seconds 60 --swerve-every 3 --record-every 3 \
     --record-frames 331 --record "$OUT/demos" > "$OUT/demos.log"

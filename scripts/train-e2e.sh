@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# The paper's pipeline end to end in the simulator, as measured in README ("Trainer"):
+# The paper's pipeline end to end in the simulator, as measured in docs/results/trainer-end-to-end.md:
 # 331 scripted-expert demonstrations with recoveries -> imitation learning (50 epochs) -> DDPG from the
 # imitation policy plus the demonstrations, for what is left of a wall-clock budget
 # (TRAIN_MINUTES, default 30) -> the paper's 600 s evaluation of the best policy.
 #   scripts/train-e2e.sh [OUT]              (default OUT: .cache/e2e)
 #   SCRATCH=1 scripts/train-e2e.sh OUT      DDPG from scratch (random actor, no
 #                                           demonstrations) for the whole budget
-# CAMERA (default pinhole: the 120-degree pinhole README's numbers used; jetbot for JetBot's
+# CAMERA (default pinhole: the 120-degree pinhole the numbers in docs/results/ used; jetbot for JetBot's
 # fisheye, the config's default) picks the simulated camera.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Tracks a policy never saw (issue 11, deliver 5d; README, "Sim-to-real, measured"): the
+# Tracks a policy never saw (issue 11, deliver 5d; docs/results/sim-to-real.md): the
 # paper's 600 s test on the default mat and on the other shipped tracks, both directions,
 # through JetBot's fisheye with plain looks. Each track as built (the JetBot mat:
 # counter-clockwise) and reversed (`eval --reverse`).

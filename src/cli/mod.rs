@@ -28,6 +28,8 @@ mod train_ddpg;
 mod train_init;
 #[cfg(feature = "train")]
 mod train_plot;
+#[cfg(feature = "train")]
+mod train_probe;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -29,10 +29,10 @@ pub struct WorldArgs {
     #[arg(long)]
     pub reverse: bool,
     /// Camera instead of the config's `[sim.camera]`: `jetbot` is JetBot's 160-degree
-    /// IMX219 fisheye at the mount fitted to real JetBot frames (README, "JetBot's camera,
-    /// fitted so far"; the default), `pinhole` the simulator's first camera (120-degree
-    /// pinhole tilted 25 degrees, which README's pinhole results used); the config's image
-    /// size is kept.
+    /// IMX219 fisheye at the mount fitted to real JetBot frames (docs/guides/simulator.md,
+    /// "JetBot's camera, fitted so far"; the default), `pinhole` the simulator's first camera
+    /// (120-degree pinhole tilted 25 degrees, which the pinhole results in docs/results/
+    /// used); the config's image size is kept.
     #[arg(long, value_enum, value_name = "NAME")]
     pub camera: Option<CameraPreset>,
     /// Randomise the camera's look (`[sim.appearance]`: white balance with JetBot's pink

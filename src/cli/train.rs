@@ -22,6 +22,10 @@ pub enum TrainCommand {
     /// policy and the demonstrations' rewards (DDPGfD). Writes best.onnx (highest autonomy
     /// in the 600 s test).
     Ddpg(super::train_ddpg::DdpgArgs),
+    /// Fit a pretrained backbone's output layer in closed form (ridge regression on its
+    /// pooled features; the backbone kept as it is): seconds where a fine-tune takes an
+    /// hour. Writes probe.onnx, a start for `train il --init` too, and probe_cv.csv.
+    Probe(super::train_probe::ProbeArgs),
     /// Measure the trainer: burn's raw step against imitation learning's images/s, and
     /// DDPG's environment steps/s with the frozen backbone, updates included.
     Bench(super::train_bench::TrainBenchArgs),
@@ -83,6 +87,15 @@ pub enum Head {
     Xy,
     /// The paper's (speed, steering).
     SpeedSteering,
+}
+
+impl From<Head> for OutputKind {
+    fn from(h: Head) -> Self {
+        match h {
+            Head::Xy => OutputKind::Xy,
+            Head::SpeedSteering => OutputKind::SpeedSteering,
+        }
+    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -186,6 +199,7 @@ pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
     match cmd {
         TrainCommand::Il(args) => il_main(args),
         TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
+        TrainCommand::Probe(args) => super::train_probe::main(args),
         TrainCommand::Bench(args) => super::train_bench::main(args),
         TrainCommand::Report(args) => report_main(args),
         TrainCommand::Plot(args) => super::train_plot::main(args),
@@ -212,10 +226,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
         contract.input_size = s;
     }
     if let Some(h) = args.head {
-        contract.output = match h {
-            Head::Xy => OutputKind::Xy,
-            Head::SpeedSteering => OutputKind::SpeedSteering,
-        };
+        contract.output = h.into();
     }
     if !(0.0..1.0).contains(&args.test_fraction) {
         anyhow::bail!(
@@ -321,7 +332,7 @@ fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
     } else if report.test_samples < FEW_HELD_OUT {
         tracing::warn!(
             "best.onnx is the epoch with the lowest loss on only {} held-out frame(s), a noisy pick; \
-             last.onnx is the whole budget's result (README: \"Seeds, the picked epoch\")",
+             last.onnx is the whole budget's result (docs/results/sim-to-real.md, \"Seeds, the picked epoch\")",
             report.test_samples
         );
     }

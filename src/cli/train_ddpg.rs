@@ -93,7 +93,7 @@ pub struct DdpgArgs {
     anchor_decay_updates: u64,
     /// Improve the actor by search instead of the critic's gradient: regress towards the
     /// best-rated of its action and neighbours this far apart on steering (0: off; see
-    /// README, "the experiment").
+    /// docs/results/paper-experiment.md).
     #[arg(long, default_value_t = 0.0)]
     search_step: f32,
     /// Start this share of the training episodes shortly before a place where an earlier

@@ -102,7 +102,7 @@ fn check_inputs(opts: &InstallOptions) -> Result<PlanInputs<'_>, ImageError> {
     inputs::require_aarch64(
         &opts.onnxruntime,
         "ONNX Runtime library",
-        ": take libonnxruntime.so.1.23.2 from the onnxruntime==1.23.2 manylinux aarch64 wheel (README, \"Install on a JetBot\")",
+        ": take libonnxruntime.so.1.23.2 from the onnxruntime==1.23.2 manylinux aarch64 wheel (docs/guides/install.md, \"Install on a JetBot\")",
     )?;
     let (cfg_name, cfg_text) = &opts.config;
     let cfg = Config::parse(cfg_text, cfg_name)

@@ -2,7 +2,7 @@
 //! (fusions, and on x86 the NCHWc layout) run once, on the machine that will run the
 //! model, and saved with the weights in a data file beside it. [`super::OrtPolicy`] loads
 //! such a file with optimisations off, so the weights are never held twice or three times
-//! while they are rewritten at start-up: a lower peak RSS on the robot (README "Memory").
+//! while they are rewritten at start-up: a lower peak RSS on the robot (docs/results/memory.md).
 //!
 //! The saved graph may hold operators laid out for this CPU, so the file records the
 //! machine it was made for ([`META_OPTIMIZED_FOR`]) and is refused anywhere else.

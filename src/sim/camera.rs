@@ -91,7 +91,8 @@ struct Extrinsics {
 pub const JETBOT_CAPTURE_ASPECT: f32 = 816.0 / 616.0;
 
 /// Downward tilt of JetBot's camera, degrees, fitted to the real frames of
-/// `../shared/realdata/jetbot_xy_mat/low_tilt` (README, "JetBot's camera, fitted so far"):
+/// `../shared/realdata/jetbot_xy_mat/low_tilt` (docs/guides/simulator.md, "JetBot's camera,
+/// fitted so far"):
 /// the far wall's foot, a few metres away, lies 25-35 px below the top of the 224x224
 /// frame, so the horizon is about 27 px down, `112 - 27 = 85` px above the centre. 160
 /// degrees over the 816x616 capture's diagonal, scaled to 224 px down from 616, give
@@ -121,7 +122,7 @@ impl CameraModel {
     /// The simulator's first camera, before it was fitted to JetBot's: a 120 degree
     /// (horizontal) pinhole, 10 cm up, 5 cm ahead of the axle, tilted down 25 degrees.
     /// Straight lines stay straight and the ground maps to the image by a homography;
-    /// README's pinhole results (the paper's experiment, `train-e2e.sh`) use it
+    /// the pinhole results in docs/results/ (the paper's experiment, `train-e2e.sh`) use it
     /// (`--camera pinhole`).
     pub fn pinhole(width: u32, height: u32) -> Self {
         Self {

@@ -188,7 +188,7 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording, (f32, f32)), SimE
     let needs = |what: &str| {
         SimError::Invalid(format!(
             "sim.road = \"path\" needs {what}: the road is the path of a recording with poses \
-             (README, \"Replay a real recording\")"
+             (docs/guides/training.md, \"Replay a real recording\")"
         ))
     };
     if sim.frames != FrameMode::Replay {

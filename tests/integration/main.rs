@@ -21,6 +21,7 @@ mod image_install;
 mod interventions_kill;
 mod poses;
 mod pretrained;
+mod probe;
 mod providers;
 mod quantize;
 mod score;

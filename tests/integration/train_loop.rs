@@ -446,8 +446,9 @@ fn ddpg_removes_the_interventions_of_a_biased_policy() {
     opts.ort_threads = 1;
     opts.agent.batch = 64;
     opts.agent.actor_lr = 1e-3;
-    // The levers of README's experiment: search, a decaying anchor (the critic starts
-    // untrained: there are no demonstrations), failure resets, OU noise on steering.
+    // The levers of the paper's experiment (docs/results/paper-experiment.md): search, a
+    // decaying anchor (the critic starts untrained: there are no demonstrations), failure
+    // resets, OU noise on steering.
     opts.agent.search_step = 0.1;
     opts.agent.anchor_weight = 5.0;
     opts.agent.anchor_decay_updates = 600;

@@ -8,6 +8,7 @@
 use std::fmt;
 
 use super::OnnxError;
+use super::graph::Dim;
 use super::lite0::{self, Lite0Weights};
 use super::proto::ModelProto;
 use super::resnet::{self, Resnet18Weights, TensorMap};
@@ -58,6 +59,15 @@ impl Arch {
         match self {
             Arch::Resnet18 => 512,
             Arch::EfficientNetLite0 => lite0::FEATURES,
+        }
+    }
+
+    /// The side of the final feature map (the one pooled into the features) for an input
+    /// of `input` pixels.
+    pub fn final_map(self, input: u32) -> usize {
+        match self {
+            Arch::Resnet18 => resnet::final_map(input as usize),
+            Arch::EfficientNetLite0 => lite0::final_map(input as usize),
         }
     }
 
@@ -157,6 +167,64 @@ impl NetWeights {
         }
     }
 
+    /// The same backbone with the output layer `weight` (`[outputs, W]`, row-major, `W`
+    /// the features or the whole final map's values, see the writers) and `bias`
+    /// (`[outputs]`): a head fitted elsewhere (`train probe`'s ridge).
+    pub fn with_head(&self, outputs: usize, weight: Vec<f32>, bias: Vec<f32>) -> Self {
+        let head = self.arch().head();
+        let mut tensors = self.tensors().clone();
+        let (n, f) = (outputs as i64, (weight.len() / outputs.max(1)) as i64);
+        tensors.insert(format!("{head}.weight"), (vec![n, f], weight));
+        tensors.insert(format!("{head}.bias"), (vec![n], bias));
+        Self::new(self.arch(), tensors)
+    }
+
+    /// The backbone alone, for an input of `input_size`: the model's one output, `output`,
+    /// is the final feature map `[1, features, s, s]` (`s = arch.final_map(input_size)`),
+    /// before the pooling and the output layer.
+    pub fn backbone_model(
+        &self,
+        input_size: u32,
+        contract: &ModelContract,
+        producer_version: &str,
+    ) -> Result<ModelProto, OnnxError> {
+        let arch = self.arch();
+        let f = arch.features();
+        // Any head will do: the graph is cut before it. One output keeps it small.
+        let stub = self.with_head(1, vec![0.0; f], vec![0.0]);
+        let mut model = stub.model(input_size, contract, producer_version)?;
+        let missing = || OnnxError::Graph("no GlobalAveragePool to cut the head at".into());
+        let graph = model.graph.as_mut().ok_or_else(missing)?;
+        let cut = graph
+            .node
+            .iter()
+            .rposition(|n| n.op_type == "GlobalAveragePool")
+            .ok_or_else(missing)?;
+        let map = graph.node[cut].input[0].clone();
+        graph.node.truncate(cut);
+        for n in graph.node.iter_mut().filter(|n| n.output.contains(&map)) {
+            for o in n.output.iter_mut().filter(|o| **o == map) {
+                *o = "output".into();
+            }
+        }
+        let head = arch.head();
+        graph
+            .initializer
+            .retain(|t| t.name != format!("{head}.weight") && t.name != format!("{head}.bias"));
+        let s = arch.final_map(input_size) as i64;
+        graph.output = vec![super::graph::value_info(
+            "output",
+            super::proto::data_type::FLOAT,
+            &[
+                Dim::Fixed(1),
+                Dim::Fixed(f as i64),
+                Dim::Fixed(s),
+                Dim::Fixed(s),
+            ],
+        )];
+        Ok(model)
+    }
+
     /// Values in the tensors the network uses (parameters and BatchNorm statistics).
     pub fn parameter_count(&self) -> u64 {
         self.tensors()
@@ -198,5 +266,90 @@ mod tests {
         assert_eq!(Arch::detect(names), Some(Arch::EfficientNetLite0));
         assert_eq!(Arch::detect(["features.0.weight"]), None);
         assert_eq!(Arch::detect(["xconv1.weight"]), None, "not a prefix");
+    }
+
+    #[test]
+    fn final_maps_follow_the_strides() {
+        for (input, lite0, resnet) in [(224, 7, 7), (96, 3, 3), (64, 2, 2), (100, 4, 4), (32, 1, 1)]
+        {
+            assert_eq!(
+                Arch::EfficientNetLite0.final_map(input),
+                lite0,
+                "lite0 {input}"
+            );
+            assert_eq!(Arch::Resnet18.final_map(input), resnet, "resnet {input}");
+        }
+        // ResNet's odd sizes: 7x7 s2 p3 on 225 -> 113, pool -> 57, stages -> 29, 15, 8.
+        assert_eq!(Arch::Resnet18.final_map(225), 8);
+    }
+
+    fn contract(size: u32) -> ModelContract {
+        ModelContract {
+            input_size: size,
+            ..ModelContract::default()
+        }
+    }
+
+    #[test]
+    fn the_backbone_model_ends_at_the_final_map_without_the_head() {
+        for arch in Arch::ALL {
+            let w = NetWeights::random(arch, 2, 3);
+            let model = w.backbone_model(64, &contract(64), "test").unwrap();
+            let summary =
+                super::super::inspect_bytes(super::super::encode_model(&model).into(), "backbone")
+                    .unwrap();
+            let graph = model.graph.unwrap();
+            let head = arch.head();
+            assert!(
+                !graph
+                    .initializer
+                    .iter()
+                    .any(|t| t.name.starts_with(&format!("{head}.")))
+            );
+            assert!(
+                !graph
+                    .node
+                    .iter()
+                    .any(|n| n.op_type == "GlobalAveragePool" || n.op_type == "Gemm")
+            );
+            assert_eq!(
+                graph.node.last().unwrap().output,
+                vec!["output".to_string()]
+            );
+            let dims: Vec<Dim> = summary.outputs[0].dims.clone();
+            assert_eq!(
+                dims,
+                [1, arch.features() as i64, 2, 2].map(Dim::Fixed).to_vec(),
+                "{arch}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_head_on_the_whole_map_is_written_and_a_wrong_width_is_named() {
+        let w = NetWeights::random(Arch::EfficientNetLite0, 2, 1);
+        // 64x64 input: a 2x2 final map, so a whole-map head is 1280 * 4 wide.
+        let full = w.with_head(2, vec![0.0; 2 * 1280 * 4], vec![0.5, -0.5]);
+        let model = full.model(64, &contract(64), "test").unwrap();
+        let ops: Vec<String> = model
+            .graph
+            .unwrap()
+            .node
+            .iter()
+            .map(|n| n.op_type.clone())
+            .collect();
+        assert!(!ops.contains(&"GlobalAveragePool".to_string()), "{ops:?}");
+        assert_eq!(&ops[ops.len() - 2..], ["Flatten", "Gemm"]);
+        let bad = w.with_head(2, vec![0.0; 2 * 1280 * 3], vec![0.0; 2]);
+        let err = bad
+            .model(64, &contract(64), "test")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("_fc.weight")
+                && err.contains("[2,1280] (pooled) or [2,5120]")
+                && err.contains("[2,3840]"),
+            "{err}"
+        );
     }
 }

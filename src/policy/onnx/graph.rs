@@ -305,7 +305,7 @@ fn check_len(name: &str, dims: &[i64], found: usize) -> Result<(), OnnxError> {
     Ok(())
 }
 
-fn value_info(name: &str, elem_type: i32, dims: &[Dim]) -> ValueInfoProto {
+pub(crate) fn value_info(name: &str, elem_type: i32, dims: &[Dim]) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
     let dim = dims
         .iter()

@@ -29,10 +29,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::OnnxError;
-use super::graph::{Dim, GraphBuilder, attr_int, element_count};
+use super::graph::{GraphBuilder, element_count};
 use super::proto::ModelProto;
 use super::resnet::{
-    META_ARCH, add_checked_initializers, bn_node, conv_node, fresh_linear, kaiming_normal, uniform,
+    META_ARCH, add_checked_initializers, bn_node, conv_node, fresh_linear, head_nodes,
+    kaiming_normal, uniform, with_head_width,
 };
 use crate::policy::contract::ModelContract;
 
@@ -102,6 +103,14 @@ pub fn same_padding(input: usize, kernel: usize, stride: usize) -> (usize, usize
     let out = input.div_ceil(stride.max(1));
     let total = ((out.saturating_sub(1)) * stride + kernel).saturating_sub(input);
     (total / 2, total - total / 2)
+}
+
+/// The side of the final feature map for an input of `input`: the stem and every block's
+/// stride, `SAME` padding.
+pub fn final_map(input: usize) -> usize {
+    blocks()
+        .iter()
+        .fold(same_output(input, 2), |x, b| same_output(x, b.stride))
 }
 
 /// The output size of a `SAME` convolution: `ceil(input / stride)`.
@@ -224,7 +233,11 @@ pub fn lite0_model(
     let mut g = GraphBuilder::new("efficientnet_lite0");
     add_checked_initializers(
         &mut g,
-        Lite0Weights::param_shapes(num_outputs),
+        with_head_width(
+            Lite0Weights::param_shapes(num_outputs),
+            "_fc",
+            &weights.tensors,
+        ),
         &weights.tensors,
     )?;
     g.initializer_f32(RELU6_MIN, &[], &[0.0])?;
@@ -282,21 +295,7 @@ pub fn lite0_model(
     }
     let h = conv_bn(&mut g, "_conv_head", "_bn1", &x, size, 1, 1, 1);
     let h = relu6(&mut g, &h);
-    g.node("GlobalAveragePool", &[&h], &["avgpool"], vec![]);
-    g.node(
-        "Flatten",
-        &["avgpool"],
-        &["flatten"],
-        vec![attr_int("axis", 1)],
-    );
-    g.node_named(
-        "_fc",
-        "Gemm",
-        &["flatten", "_fc.weight", "_fc.bias"],
-        &["output"],
-        vec![attr_int("transB", 1)],
-    );
-    g.output_f32("output", &[Dim::Fixed(1), Dim::Fixed(num_outputs as i64)]);
+    head_nodes(&mut g, &h, "_fc", FEATURES, size, &weights.tensors)?;
 
     let mut metadata = contract.to_metadata();
     metadata.push((META_ARCH.to_string(), ARCH_NAME.to_string()));

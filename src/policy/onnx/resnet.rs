@@ -128,7 +128,8 @@ impl Resnet18Weights {
 /// Named tensors: shape and values.
 pub type TensorMap = BTreeMap<String, (Vec<i64>, Vec<f32>)>;
 
-/// `N` from the shape `[N,features]` of the linear layer's weight `name`.
+/// `N` from the shape `[N,W]` of the linear layer's weight `name`, where `W` is `features`
+/// (on pooled features) or a multiple of it (on the whole final map, see [`head_nodes`]).
 pub(crate) fn linear_outputs(
     tensors: &TensorMap,
     name: &str,
@@ -140,13 +141,93 @@ pub(crate) fn linear_outputs(
         expected: expected.clone(),
     })?;
     match dims.as_slice() {
-        [n, f] if *n >= 1 && *f == features as i64 => Ok(*n as usize),
+        [n, f] if *n >= 1 && *f >= 1 && *f % features as i64 == 0 => Ok(*n as usize),
         _ => Err(OnnxError::WeightShape {
             name: name.into(),
             expected,
             found: shape_to_string(dims),
         }),
     }
+}
+
+/// The output layer `head` (`Gemm` with `{head}.weight` `[N,W]` and `{head}.bias`) on the
+/// final feature map `map`, `[1,features,s,s]`, to the graph's `output`: with
+/// `W = features` the map is average-pooled first (the networks' own head); with
+/// `W = features * s * s` the head reads the whole map, flattened channel by channel (a head
+/// fitted on pooled cells, `train probe --grid`, folds into this exactly). Any other `W` is
+/// an error naming both shapes it could have.
+pub(crate) fn head_nodes(
+    g: &mut GraphBuilder,
+    map: &str,
+    head: &str,
+    features: usize,
+    s: usize,
+    tensors: &TensorMap,
+) -> Result<usize, OnnxError> {
+    let name = format!("{head}.weight");
+    let n = linear_outputs(tensors, &name, features)?;
+    let width = tensors.get(&name).map_or(0, |(d, _)| d[1] as usize);
+    let flat = if width == features {
+        g.node("GlobalAveragePool", &[map], &["avgpool"], vec![]);
+        "avgpool"
+    } else if width == features * s * s {
+        map
+    } else {
+        return Err(OnnxError::WeightShape {
+            name,
+            expected: format!(
+                "[{n},{features}] (pooled) or [{n},{}] (the whole {s}x{s} final map of this input size)",
+                features * s * s
+            ),
+            found: format!("[{n},{width}]"),
+        });
+    };
+    g.node("Flatten", &[flat], &["flatten"], vec![attr_int("axis", 1)]);
+    g.node_named(
+        head,
+        "Gemm",
+        &[
+            "flatten",
+            &format!("{head}.weight"),
+            &format!("{head}.bias"),
+        ],
+        &["output"],
+        vec![attr_int("transB", 1)],
+    );
+    g.output_f32("output", &[Dim::Fixed(1), Dim::Fixed(n as i64)]);
+    Ok(n)
+}
+
+/// `shapes` with the output layer's weight `{head}.weight` as `tensors` has it (a whole-map
+/// head is wider than `param_shapes` says; [`head_nodes`] checks its width).
+pub(crate) fn with_head_width(
+    mut shapes: Vec<(String, Vec<i64>)>,
+    head: &str,
+    tensors: &TensorMap,
+) -> Vec<(String, Vec<i64>)> {
+    let name = format!("{head}.weight");
+    if let (Some(entry), Some((dims, _))) = (
+        shapes.iter_mut().find(|(n, _)| *n == name),
+        tensors.get(&name),
+    ) && dims.len() == 2
+        && entry.1.len() == 2
+        && dims[0] == entry.1[0]
+    {
+        entry.1[1] = dims[1];
+    }
+    shapes
+}
+
+/// The side of ResNet-18's final feature map for an input of `input`: conv1 (7x7, stride 2,
+/// pad 3), the max pool (3x3, stride 2, pad 1), then three stride-2 stages (3x3, pad 1).
+pub fn final_map(input: usize) -> usize {
+    let down = |x: usize, k: usize, pad: usize| (x + 2 * pad).saturating_sub(k) / 2 + 1;
+    let mut x = down(input, 7, 3);
+    x = down(x, 3, 1);
+    for _ in 0..3 {
+        x = down(x, 3, 1);
+    }
+    x
 }
 
 /// Replaces the linear layer `{name}.weight` `[outputs,features]` and `{name}.bias`
@@ -246,7 +327,11 @@ pub fn resnet18_model(
     let mut g = GraphBuilder::new("resnet18");
     add_checked_initializers(
         &mut g,
-        Resnet18Weights::param_shapes(num_outputs),
+        with_head_width(
+            Resnet18Weights::param_shapes(num_outputs),
+            "fc",
+            &weights.tensors,
+        ),
         &weights.tensors,
     )?;
 
@@ -270,21 +355,14 @@ pub fn resnet18_model(
         }
     }
 
-    g.node("GlobalAveragePool", &[&x], &["avgpool"], vec![]);
-    g.node(
-        "Flatten",
-        &["avgpool"],
-        &["flatten"],
-        vec![attr_int("axis", 1)],
-    );
-    g.node_named(
+    head_nodes(
+        &mut g,
+        &x,
         "fc",
-        "Gemm",
-        &["flatten", "fc.weight", "fc.bias"],
-        &["output"],
-        vec![attr_int("transB", 1)],
-    );
-    g.output_f32("output", &[Dim::Fixed(1), Dim::Fixed(num_outputs as i64)]);
+        FC_IN as usize,
+        final_map(input_size as usize),
+        &weights.tensors,
+    )?;
 
     let mut metadata = contract.to_metadata();
     metadata.push((META_ARCH.to_string(), "resnet18".to_string()));

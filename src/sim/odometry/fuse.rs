@@ -66,7 +66,8 @@ pub struct FusionParams {
     /// multiplied by this. Vision's information counts every floor cell as a measurement,
     /// but its errors are not independent (interpolation, a curve's near-symmetry), so
     /// taken at face value it outweighs the wheels where it should not. Chosen on one
-    /// simulated lap (README: 1, 4, 16, 64 tried; 16 kept), not on real data.
+    /// simulated lap (1, 4, 16, 64 tried; 16 kept; the study: docs/results/odometry.md), not
+    /// on real data.
     pub prior_weight: f32,
 }
 

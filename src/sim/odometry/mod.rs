@@ -52,8 +52,9 @@ pub struct OdometryParams {
     /// than this ([`calibrate::scatter`]), vision is taken to be `scatter / this` times
     /// overconfident: the calibration counts fewer frames as well measured, and the
     /// wheels hold the fused pass harder (the prior's weight is multiplied by it). 0: off. 4 by default: above the
-    /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; README's
-    /// odometry study), below the 4.6-14 of looks where it pulled the estimate off.
+    /// 1.1-3.8 of the laps where vision helps (30, 15 and 10 Hz, noise, blur; the
+    /// odometry study, docs/results/odometry.md), below the 4.6-14 of looks where it
+    /// pulled the estimate off.
     pub scatter_ref: f64,
     /// Take out what the camera adds at fixed pixels (vignetting, a light gradient, glare
     /// that travels with the robot), which registration would read as no motion: fit a

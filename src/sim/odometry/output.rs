@@ -82,7 +82,7 @@ pub fn replay_config(base: &Config, made_from: &str) -> Result<String, SimError>
     Ok(format!(
         "# A replayed-frame simulator of the recording in this folder, written by `jetpilot poses`\n\
          # from {made_from}: the recorded frames re-projected around their estimated poses, with\n\
-         # the recorded path as the road (README, \"Replay a real recording\"). From this folder:\n\
+         # the recorded path as the road (docs/guides/training.md, \"Replay a real recording\"). From this folder:\n\
          #   {eval}\n\
          #   {ddpg}\n\
          # [sim.path] lanes: 1 when the path runs in a lane between two lines, 2 on the JetBot\n\

@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# The linear probe's curve on real frames (docs/results/pretrained-backbones.md, "Linear
+# probe"): `jetpilot train probe` (ImageNet EfficientNet-Lite0, frozen; its head fitted by
+# ridge regression, grid and mirroring chosen by cross-validation on the training frames)
+# on N frames spread evenly over the earlier 80 % by capture time, each scored on the
+# latest 20 % (`jetpilot score --split-by-time 0.2`), which no run sees.
+#
+#   scripts/probe-curve.sh REALDATA [OUT]
+#       REALDATA: labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat)
+#
+# Env: FRAMES (default "25 50 100 all"), INPUT_SIZE (default 224), PROBE_ARGS (more
+# `train probe` flags, e.g. "--grid 1 --mirror off"), BIN (skip the build). Writes
+# OUT/probe_curve.csv (frames, px, baseline_px, pooling) and OUT/probe_<N>/ (the model,
+# its cross-validation table, its score). The real frames are linked, not copied.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+REAL=${1:-}
+OUT=${2:-.cache/probe-curve}
+FRAMES=${FRAMES:-25 50 100 all}
+INPUT_SIZE=${INPUT_SIZE:-224}
+if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
+  echo "usage: scripts/probe-curve.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
+  echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_mat); got '${REAL}'" >&2
+  exit 2
+fi
+REAL=$(cd "$REAL" && pwd)
+scripts/install-imagenet-weights.sh > /dev/null
+ORT_LIB=$(scripts/install-onnxruntime.sh)
+export ORT_DYLIB_PATH="$ORT_LIB"
+if [ -n "${BIN:-}" ]; then
+  B=$BIN
+else
+  scripts/install-build-deps.sh
+  cargo build --release --features train --locked
+  B=target/release/jetpilot
+fi
+mkdir -p "$OUT"
+
+# Non-empty frames sorted by the uuid1 capture time in their names (as real-finetune.sh).
+find "$REAL" -name 'xy_*.jpg' -size +0 | awk -F/ '{
+  n = $NF; split(n, p, "_"); split(p[4], u, "-");
+  print substr(u[3], 2) u[2] u[1] "\t" $0 }' | sort | cut -f2 > "$OUT/by_time.txt"
+TOTAL=$(wc -l < "$OUT/by_time.txt")
+TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the latest ~20 %
+echo "real frames: $TOTAL, the earliest $TRAIN to fit on, the rest scored"
+
+echo "frames,px,baseline_px,pooling" > "$OUT/probe_curve.csv"
+mean() { awk -v w="$1" '$1 == w && $2 == "mean" { print $3 }' "$2"; }
+for n in $FRAMES; do
+  [ "$n" = all ] && n=$TRAIN
+  d="$OUT/frames_$n"
+  rm -rf "$d"
+  mkdir -p "$d"
+  awk -v n="$n" -v t="$TRAIN" 'NR <= t && (NR - 1) % (t / n) < 1 && c < n { print; c++ }' \
+    "$OUT/by_time.txt" | while read -r f; do ln -s "$f" "$d/"; done
+  got=$(find "$d" -name '*.jpg' | wc -l)
+  r="$OUT/probe_$n"
+  rm -rf "$r"
+  echo "== probe on $got real frames"
+  folds=5
+  [ "$got" -lt 50 ] && folds=3
+  # shellcheck disable=SC2086 # PROBE_ARGS is a list of words
+  "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --folds "$folds" \
+    ${PROBE_ARGS:-} --data "$d" -o "$r" > "$r.log" 2>&1
+  pooling=$(awk -F' -> ' '/ridge strength .* -> / { print $1 }' "$r.log" | tail -1)
+  "$B" score --model "$r/probe.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
+    > "$r/score.txt" 2>&1
+  echo "$got,$(mean model "$r/score.txt"),$(mean baseline "$r/score.txt"),\"$pooling\"" \
+    | tee -a "$OUT/probe_curve.csv"
+done
+echo "wrote $OUT/probe_curve.csv"

