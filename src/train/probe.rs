@@ -34,7 +34,21 @@ pub struct ProbeData {
     pub warnings: Vec<String>,
 }
 
+/// One row's error for `output`'s kind: pixels for xy, squared error for speed and steering.
+fn row_error(output: OutputKind) -> impl Fn(&[f32], &[f64]) -> f64 {
+    move |l: &[f32], p: &[f64]| {
+        crate::score::frame_error(output, [l[0], l[1]], [p[0] as f32, p[1] as f32])
+    }
+}
+
 impl ProbeData {
+    /// Each row's fold: `folds` contiguous blocks of its frame in time order.
+    pub fn row_folds(&self, folds: usize) -> Vec<usize> {
+        let frames = self.frame.iter().max().map_or(0, |m| m + 1);
+        let blocks = ridge::time_blocks(frames, folds);
+        self.frame.iter().map(|&f| blocks[f]).collect()
+    }
+
     /// The rows pooled into `grid` x `grid` cells ([`pool_cells`]) from maps of `channels`
     /// x `side` x `side`; without the mirrored copies unless `mirror`.
     pub fn pooled(&self, channels: usize, side: usize, grid: usize, mirror: bool) -> ProbeData {
@@ -70,20 +84,50 @@ pub struct Tried {
 }
 
 impl Tried {
-    /// Its best cross-validated error (infinite when it was not cross-validated).
+    /// Its cross-validation at its probe's strength (the lowest error of its table where
+    /// that strength is not in it); `None` when it was not cross-validated.
+    pub fn validated(&self) -> Option<Validated> {
+        let v = &self.probe.validated;
+        v.iter()
+            .find(|v| v.strength == self.probe.strength)
+            .or_else(|| v.iter().min_by(|a, b| a.error.total_cmp(&b.error)))
+            .copied()
+    }
+
+    /// [`Tried::validated`]'s error, infinite when there is none.
     pub fn error(&self) -> f64 {
-        self.probe
-            .validated
-            .iter()
-            .map(|v| v.error)
-            .fold(f64::INFINITY, f64::min)
+        self.validated().map_or(f64::INFINITY, |v| v.error)
     }
 }
 
-/// Fits every pooling of `poolings` on `data`'s maps (`channels` x `side` x `side`) and
-/// returns them all, the lowest cross-validated error first. One pooling with a given
-/// `strength` is fitted without cross-validation; several are compared at that strength,
-/// or each at its best of [`ridge::default_strengths`] for its width.
+/// How [`choose`] picks among the cross-validated (pooling, strength) pairs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rule {
+    /// The lowest cross-validated error.
+    Lowest,
+    /// Of every pair within one standard error of the lowest, the simplest: the fewest
+    /// cells, then the strongest ridge, then without mirrored copies.
+    OneStandardError,
+}
+
+/// [`choose`]'s result: every pooling tried, the chosen one first, and the constant
+/// answer's cross-validation beside them.
+#[derive(Debug, Clone)]
+pub struct Chosen {
+    pub tried: Vec<Tried>,
+    /// The mean label's cross-validated error (`None` without cross-validation).
+    pub constant: Option<Validated>,
+    /// No pooling beat the constant by more than its standard error: the head written is
+    /// the constant (zero weights, the mean label as the bias), `tried[0]`.
+    pub fell_back: bool,
+}
+
+/// Fits every pooling of `poolings` on `data`'s maps (`channels` x `side` x `side`).
+/// One pooling with a given `strength` is fitted without cross-validation. Otherwise each
+/// pooling is cross-validated at that strength, or over [`ridge::default_strengths`] for
+/// its width; `rule` picks the pair, which is refitted on every frame. A pick that does not
+/// beat the constant answer (the mean label, cross-validated on the same folds) by more
+/// than the constant's standard error is not trusted: the head becomes that constant.
 pub fn choose(
     data: &ProbeData,
     (channels, side): (usize, usize),
@@ -91,7 +135,8 @@ pub fn choose(
     output: OutputKind,
     folds: usize,
     strength: Option<f64>,
-) -> Result<Vec<Tried>, TrainError> {
+    rule: Rule,
+) -> Result<Chosen, TrainError> {
     if let Some(p) = poolings.iter().find(|p| p.grid == 0 || p.grid > side) {
         return Err(TrainError::Data {
             path: "--grid".into(),
@@ -115,8 +160,116 @@ pub fn choose(
         let probe = fit(&pooled, output, folds, strength, &strengths)?;
         tried.push(Tried { pooling, probe });
     }
+    let picked = match rule {
+        Rule::Lowest => lowest(&tried),
+        Rule::OneStandardError => one_standard_error(&tried),
+    };
+    let Some((pick, strength)) = picked else {
+        return Ok(Chosen {
+            tried,
+            constant: None,
+            fell_back: false,
+        });
+    };
+    let y: Vec<&[f32]> = data.labels.iter().map(|l| l.as_slice()).collect();
+    let constant = ridge::cross_validate_constant(
+        &y,
+        &data.row_folds(folds),
+        &data.original,
+        row_error(output),
+    );
+    let picked_error = tried[pick]
+        .probe
+        .validated
+        .iter()
+        .find(|v| v.strength == strength)
+        .map_or(f64::INFINITY, |v| v.error);
+    let fell_back = picked_error >= constant.error - constant.standard_error;
+    let chosen = if fell_back {
+        constant_answer(data, channels, &constant)
+    } else {
+        // Refit the chosen pooling at the chosen strength, its table kept.
+        let mut chosen = tried.remove(pick);
+        let p = chosen.pooling;
+        let validated = std::mem::take(&mut chosen.probe.validated);
+        chosen.probe = fit(
+            &data.pooled(channels, side, p.grid, p.mirror),
+            output,
+            folds,
+            Some(strength),
+            &[],
+        )?;
+        chosen.probe.validated = validated;
+        chosen
+    };
     tried.sort_by(|a, b| a.error().total_cmp(&b.error()));
-    Ok(tried)
+    tried.insert(0, chosen);
+    Ok(Chosen {
+        tried,
+        constant: Some(constant),
+        fell_back,
+    })
+}
+
+/// The head that answers the mean label of the frames (not their mirror images) whatever
+/// it sees, on globally pooled features.
+fn constant_answer(data: &ProbeData, channels: usize, cv: &Validated) -> Tried {
+    let rows: Vec<&[f32; 2]> = data
+        .labels
+        .iter()
+        .zip(&data.original)
+        .filter_map(|(l, o)| o.then_some(l))
+        .collect();
+    let n = rows.len().max(1) as f64;
+    let bias = (0..2)
+        .map(|c| rows.iter().map(|l| l[c] as f64).sum::<f64>() / n)
+        .collect();
+    Tried {
+        pooling: Pooling {
+            grid: 1,
+            mirror: false,
+        },
+        probe: Probe {
+            validated: vec![*cv],
+            strength: f64::INFINITY,
+            head: LinearHead {
+                weight: vec![vec![0.0; channels]; 2],
+                bias,
+            },
+        },
+    }
+}
+
+/// The lowest cross-validated error of `tried`: its index and strength.
+fn lowest(tried: &[Tried]) -> Option<(usize, f64)> {
+    tried
+        .iter()
+        .enumerate()
+        .flat_map(|(i, t)| t.probe.validated.iter().map(move |v| (i, v)))
+        .min_by(|a, b| a.1.error.total_cmp(&b.1.error))
+        .map(|(i, v)| (i, v.strength))
+}
+
+/// The one-standard-error choice over every cross-validated (pooling, strength) of
+/// `tried`: its index and strength; `None` when nothing was cross-validated.
+fn one_standard_error(tried: &[Tried]) -> Option<(usize, f64)> {
+    let all: Vec<(usize, &Validated)> = tried
+        .iter()
+        .enumerate()
+        .flat_map(|(i, t)| t.probe.validated.iter().map(move |v| (i, v)))
+        .collect();
+    let best = all.iter().min_by(|a, b| a.1.error.total_cmp(&b.1.error))?;
+    let limit = best.1.error + best.1.standard_error;
+    all.iter()
+        .filter(|(_, v)| v.error <= limit)
+        .min_by(|(i, v), (j, w)| {
+            let (a, b) = (tried[*i].pooling, tried[*j].pooling);
+            a.grid
+                .cmp(&b.grid)
+                .then(w.strength.total_cmp(&v.strength))
+                .then(a.mirror.cmp(&b.mirror))
+        })
+        .map(|(i, v)| (*i, v.strength))
 }
 
 /// The backbone of `weights` on ONNX Runtime, its output the final feature map.
@@ -356,14 +509,16 @@ pub fn fit(
     let (validated, strength) = match strength {
         Some(s) => (Vec::new(), s),
         None => {
-            let frames = data.frame.iter().max().map_or(0, |m| m + 1);
-            let blocks = ridge::time_blocks(frames, folds);
-            let row_folds: Vec<usize> = data.frame.iter().map(|&f| blocks[f]).collect();
-            let error = |l: &[f32], p: &[f64]| {
-                crate::score::frame_error(output, [l[0], l[1]], [p[0] as f32, p[1] as f32])
-            };
-            let v = ridge::cross_validate(&x, &y, &row_folds, &data.original, strengths, error)
-                .map_err(ridge_err)?;
+            let row_folds = data.row_folds(folds);
+            let v = ridge::cross_validate(
+                &x,
+                &y,
+                &row_folds,
+                &data.original,
+                strengths,
+                row_error(output),
+            )
+            .map_err(ridge_err)?;
             let best = v
                 .iter()
                 .min_by(|a, b| a.error.total_cmp(&b.error))
@@ -454,6 +609,55 @@ mod tests {
         assert_eq!(both.original, data.original);
     }
 
+    fn tried(grid: usize, mirror: bool, errors: &[(f64, f64, f64)]) -> Tried {
+        Tried {
+            pooling: Pooling { grid, mirror },
+            probe: Probe {
+                validated: errors
+                    .iter()
+                    .map(|&(strength, error, standard_error)| Validated {
+                        strength,
+                        error,
+                        standard_error,
+                    })
+                    .collect(),
+                strength: 0.0,
+                head: LinearHead {
+                    weight: vec![],
+                    bias: vec![],
+                },
+            },
+        }
+    }
+
+    #[test]
+    fn the_one_standard_error_rule_takes_the_simplest_within_reach() {
+        // Best: grid 3 at 10 (error 50, se 6): within 56 are grid 1 at 100 (55) and at 10
+        // (56): grid 1 at the stronger ridge wins.
+        let t = [
+            tried(3, true, &[(10.0, 50.0, 6.0), (100.0, 58.0, 1.0)]),
+            tried(
+                1,
+                false,
+                &[(10.0, 56.0, 2.0), (100.0, 55.0, 2.0), (1000.0, 57.0, 1.0)],
+            ),
+        ];
+        assert_eq!(one_standard_error(&t), Some((1, 100.0)));
+        // A clear winner (se 1): grid 3 stays.
+        let t = [
+            tried(3, true, &[(10.0, 38.0, 1.0)]),
+            tried(1, false, &[(100.0, 45.0, 1.0)]),
+        ];
+        assert_eq!(one_standard_error(&t), Some((0, 10.0)));
+        // Level grid and strength: without mirrored copies first.
+        let t = [
+            tried(2, true, &[(10.0, 40.0, 1.0)]),
+            tried(2, false, &[(10.0, 40.5, 1.0)]),
+        ];
+        assert_eq!(one_standard_error(&t), Some((1, 10.0)));
+        assert_eq!(one_standard_error(&[tried(1, false, &[])]), None);
+    }
+
     #[test]
     fn grid_edge_is_seen() {
         let head = LinearHead {
@@ -463,6 +667,7 @@ mod tests {
         let v = |s| Validated {
             strength: s,
             error: 0.0,
+            standard_error: 0.0,
         };
         let probe = Probe {
             validated: vec![v(1.0), v(10.0), v(100.0)],

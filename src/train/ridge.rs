@@ -197,6 +197,9 @@ pub struct Validated {
     pub strength: f64,
     /// Mean of `error` over the scored rows, each predicted by the fit without its fold.
     pub error: f64,
+    /// The standard error of `error`: the spread of the folds' own means over the square
+    /// root of their count (rows of one fold are near-duplicates, not independent).
+    pub standard_error: f64,
 }
 
 /// K-fold cross-validation: row `i` is in fold `folds[i]`; for each fold, fits on the
@@ -228,6 +231,7 @@ pub fn cross_validate(
         return Err(RidgeError::Folds(used));
     }
     let mut sums = vec![0.0; strengths.len()];
+    let mut fold_means: Vec<Vec<f64>> = vec![Vec::new(); strengths.len()];
     let mut count = 0usize;
     for fold in 0..k {
         let (train, test): (Vec<usize>, Vec<usize>) = (0..x.len()).partition(|&i| folds[i] != fold);
@@ -236,23 +240,73 @@ pub fn cross_validate(
             continue;
         }
         let dual = Dual::new(&pick(&train, x), &pick(&train, y));
-        for (s, sum) in strengths.iter().zip(sums.iter_mut()) {
+        for (j, s) in strengths.iter().enumerate() {
             let head = dual.head(*s);
-            *sum += test
+            let sum = test
                 .iter()
                 .map(|&i| error(y[i], &head.predict(x[i])))
                 .sum::<f64>();
+            sums[j] += sum;
+            fold_means[j].push(sum / test.len() as f64);
         }
         count += test.len();
     }
     Ok(strengths
         .iter()
         .zip(sums)
-        .map(|(&strength, sum)| Validated {
+        .zip(fold_means)
+        .map(|((&strength, sum), means)| Validated {
             strength,
             error: sum / count.max(1) as f64,
+            standard_error: standard_error(&means),
         })
         .collect())
+}
+
+/// The same cross-validation of the constant answer, the mean label of each fold's other
+/// scored rows (what a ridge of infinite strength answers): the error a probe has to beat.
+pub fn cross_validate_constant(
+    y: &[&[f32]],
+    folds: &[usize],
+    scored: &[bool],
+    error: impl Fn(&[f32], &[f64]) -> f64,
+) -> Validated {
+    let k = folds.iter().max().map_or(0, |m| m + 1);
+    let width = y.first().map_or(0, |r| r.len());
+    let (mut sum, mut count, mut means) = (0.0, 0usize, Vec::new());
+    for fold in 0..k {
+        let rows =
+            |inside: bool| (0..y.len()).filter(move |&i| scored[i] && (folds[i] == fold) == inside);
+        let train: Vec<usize> = rows(false).collect();
+        let test: Vec<usize> = rows(true).collect();
+        if train.is_empty() || test.is_empty() {
+            continue;
+        }
+        let mean: Vec<f64> = (0..width)
+            .map(|c| train.iter().map(|&i| y[i][c] as f64).sum::<f64>() / train.len() as f64)
+            .collect();
+        let fold_sum: f64 = test.iter().map(|&i| error(y[i], &mean)).sum();
+        sum += fold_sum;
+        count += test.len();
+        means.push(fold_sum / test.len() as f64);
+    }
+    Validated {
+        strength: f64::INFINITY,
+        error: sum / count.max(1) as f64,
+        standard_error: standard_error(&means),
+    }
+}
+
+/// The standard error of the mean of `values`: their sample sd over `sqrt(n)`; 0 for
+/// fewer than two.
+pub fn standard_error(values: &[f64]) -> f64 {
+    let n = values.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = values.iter().sum::<f64>() / n as f64;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    (var / n as f64).sqrt()
 }
 
 fn pick<'a>(rows: &[usize], m: &[&'a [f32]]) -> Vec<&'a [f32]> {
@@ -334,6 +388,28 @@ mod tests {
         let err = |l: &[f32], p: &[f64]| (l[0] as f64 - p[0]).abs();
         let cv = cross_validate(&rows(&x), &rows(&y), &folds, &scored, &strengths, err).unwrap();
         assert!(cv[1].error < cv[0].error, "{cv:?}");
+    }
+
+    #[test]
+    fn the_constant_answer_is_cross_validated_on_the_scored_rows() {
+        // Folds {0,1} and {2,3}; row 3 is a mirrored copy (not scored, not averaged).
+        // Fold 0 predicts rows 0, 1 with row 2's label 4: errors 3, 2. Fold 1 predicts
+        // row 2 with the mean of rows 0, 1 (1.5): error 2.5. Mean over 3 rows: 7.5 / 3.
+        let y = [vec![1.0f32], vec![2.0], vec![4.0], vec![-4.0]];
+        let y: Vec<&[f32]> = y.iter().map(Vec::as_slice).collect();
+        let err = |l: &[f32], p: &[f64]| (l[0] as f64 - p[0]).abs();
+        let v = cross_validate_constant(&y, &[0, 0, 1, 1], &[true, true, true, false], err);
+        assert!((v.error - 2.5).abs() < 1e-12, "{v:?}");
+        // Fold means 2.5 and 2.5: no spread.
+        assert_eq!(v.standard_error, 0.0);
+        assert!(v.strength.is_infinite());
+    }
+
+    #[test]
+    fn standard_error_worked_by_hand() {
+        // 1, 2, 3, 6: mean 3, sample variance (4 + 1 + 0 + 9) / 3 = 14/3, se sqrt(14/12).
+        assert!((standard_error(&[1.0, 2.0, 3.0, 6.0]) - (14.0f64 / 12.0).sqrt()).abs() < 1e-12);
+        assert_eq!(standard_error(&[5.0]), 0.0);
     }
 
     #[test]

@@ -45,18 +45,32 @@ fn backbone(dir: &Path) -> PathBuf {
     path
 }
 
-/// 16 frames of seeded noise blobs, each labelled at a different pixel, one a second.
+/// 16 frames of seeded noise, each labelled at a different pixel, one a second: nothing
+/// in a picture says where its label is.
 fn xy_folder(dir: &Path) -> PathBuf {
-    let out = dir.join("xy");
+    frames(dir, "xy", |_, rng| rng.random_range(0..=255))
+}
+
+/// 16 frames whose grey level says where the label is (frame `i` has step `k = 7i mod 16`
+/// of both), in a time order that mixes the steps, with a little noise.
+fn learnable_folder(dir: &Path) -> PathBuf {
+    frames(dir, "learnable", |k, rng| {
+        (20 + 13 * k + rng.random_range(0..4)) as u8
+    })
+}
+
+/// 16 frames of 64x64 whose pixels `pixel(k, rng)` draws, labelled at step `k = 7i mod 16`
+/// (file name pixel (20 + 11k, 200 - 9k)), frame `i` captured at second `i`.
+fn frames(dir: &Path, name: &str, pixel: impl Fn(u32, &mut ChaCha8Rng) -> u8) -> PathBuf {
+    let out = dir.join(name);
     std::fs::create_dir_all(&out).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     for i in 0..16u32 {
-        let pixels: Vec<u8> = (0..64 * 64 * 3)
-            .map(|_| rng.random_range(0..=255))
-            .collect();
+        let k = (7 * i) % 16;
+        let pixels: Vec<u8> = (0..64 * 64 * 3).map(|_| pixel(k, &mut rng)).collect();
         let mut jpeg = Vec::new();
         encode_jpeg(&pixels, 64, 64, &mut jpeg).unwrap();
-        let (px, py) = (20 + 11 * i, 200 - 9 * i);
+        let (px, py) = (20 + 11 * k, 200 - 9 * k);
         let uuid1 = format!("{:08x}-0000-1000-8000-000000000000", i * 10_000_000);
         jetbot_xy::write_sample(&out, px, py, &jpeg, &uuid1).unwrap();
     }
@@ -144,13 +158,10 @@ fn a_weak_ridge_reproduces_its_labels_through_the_written_model() {
     }
 }
 
-#[test]
-fn the_default_probe_chooses_its_strength_by_cross_validation() {
-    let dir = tempfile::tempdir().unwrap();
-    let init = backbone(dir.path());
-    let data = xy_folder(dir.path());
-    let out = dir.path().join("probe");
-    let text = ok(
+/// `train probe` with the defaults (auto grid and mirroring, strength by cross-validation)
+/// on `data`, 4 folds, the latest quarter left out.
+fn default_probe(init: &Path, data: &Path, out: &Path) -> String {
+    ok(
         jetpilot(&[
             "train",
             "probe",
@@ -170,7 +181,30 @@ fn the_default_probe_chooses_its_strength_by_cross_validation() {
             out.to_str().unwrap(),
         ]),
         "train probe",
-    );
+    )
+}
+
+#[test]
+fn one_picture_labelled_16_ways_teaches_nothing_and_the_probe_answers_the_mean_label() {
+    let dir = tempfile::tempdir().unwrap();
+    let init = backbone(dir.path());
+    let data = frames(dir.path(), "same", |_, _| 128);
+    let out = dir.path().join("probe");
+    let text = default_probe(&init, &data, &out);
+    assert!(text.contains("the mean label (constant)"), "{text}");
+    assert!(text.contains("the mean label -> "), "{text}");
+}
+
+#[test]
+fn the_default_probe_chooses_its_strength_by_cross_validation() {
+    let dir = tempfile::tempdir().unwrap();
+    let init = backbone(dir.path());
+    let data = learnable_folder(dir.path());
+    let out = dir.path().join("probe");
+    let text = default_probe(&init, &data, &out);
+    // The grey level is learnt: the latest 4 frames, never fitted on, are scored.
+    let px = scored_px(&out.join("probe.onnx"), &data, &dir.path().join("score"));
+    assert!(px < 60.0, "{px} px over all 16 frames\n{text}");
     assert!(text.contains("fitting on the earliest 12 frames"), "{text}");
     assert!(
         text.contains("of 12 frames and their mirror images"),
