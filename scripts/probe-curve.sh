@@ -63,7 +63,7 @@ for n in $FRAMES; do
   # shellcheck disable=SC2086 # PROBE_ARGS is a list of words
   "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --folds "$folds" \
     ${PROBE_ARGS:-} --data "$d" -o "$r" > "$r.log" 2>&1
-  pooling=$(awk -F' -> ' '/ridge strength .* -> / { print $1 }' "$r.log" | tail -1)
+  pooling=$(grep ' -> ' "$r.log" | tail -1 | sed 's/ -> .*//')   # "grid 2x2, ..., ridge strength S" or "the mean label"
   "$B" score --model "$r/probe.onnx" --data "$REAL" --split-by-time 0.2 --out "$r/score" \
     > "$r/score.txt" 2>&1
   echo "$got,$(mean model "$r/score.txt"),$(mean baseline "$r/score.txt"),\"$pooling\"" \

@@ -23,8 +23,9 @@ pub enum TrainCommand {
     /// in the 600 s test).
     Ddpg(super::train_ddpg::DdpgArgs),
     /// Fit a pretrained backbone's output layer in closed form (ridge regression on its
-    /// pooled features; the backbone kept as it is): seconds where a fine-tune takes an
-    /// hour. Writes probe.onnx, a start for `train il --init` too, and probe_cv.csv.
+    /// final feature map, pooled into cells; the backbone kept as it is): minutes where a
+    /// fine-tune takes an hour. Writes probe.onnx (with a 1x1 pooled head also a start for
+    /// `train il --init`) and probe_cv.csv.
     Probe(super::train_probe::ProbeArgs),
     /// Measure the trainer: burn's raw step against imitation learning's images/s, and
     /// DDPG's environment steps/s with the frozen backbone, updates included.

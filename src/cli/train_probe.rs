@@ -38,8 +38,9 @@ pub struct ProbeArgs {
     /// What the outputs mean (default: the config's `model.output`).
     #[arg(long, value_enum)]
     head: Option<super::train::Head>,
-    /// The ridge strength (on standardised features). Default: chosen from a grid by
-    /// cross-validation over blocks of capture time (--folds).
+    /// The ridge strength (on standardised features). Default: chosen among 13, from
+    /// 10^-3 to 10^3 times the head's width, by cross-validation over blocks of capture
+    /// time (--folds).
     #[arg(long, value_name = "LAMBDA")]
     strength: Option<f64>,
     /// Pool the backbone's final feature map into GRID x GRID cells, not into one: the
