@@ -268,7 +268,7 @@ pub fn main(args: ProbeArgs) -> anyhow::Result<ExitCode> {
                  frames: the head written answers the mean label (more frames, or frames that \
                  vary more, give the probe something to learn)"
             );
-        } else if fitted.at_grid_edge() {
+        } else if fitted.at_strength_edge() {
             tracing::warn!(
                 strength = fitted.strength,
                 "the chosen strength is at the end of the grid: try --strength beyond it"

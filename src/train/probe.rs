@@ -484,9 +484,9 @@ pub struct Probe {
 }
 
 impl Probe {
-    /// Whether the chosen strength is the grid's smallest or largest (a wider grid might
-    /// do better).
-    pub fn at_grid_edge(&self) -> bool {
+    /// Whether the chosen strength is the smallest or largest of those cross-validated (a
+    /// wider range might do better). Not `--grid`, the pooling cells.
+    pub fn at_strength_edge(&self) -> bool {
         let first = self.validated.first().map(|v| v.strength);
         let last = self.validated.last().map(|v| v.strength);
         self.validated.len() > 1 && (first == Some(self.strength) || last == Some(self.strength))
@@ -659,7 +659,7 @@ mod tests {
     }
 
     #[test]
-    fn grid_edge_is_seen() {
+    fn strength_edge_is_seen() {
         let head = LinearHead {
             weight: vec![],
             bias: vec![],
@@ -674,11 +674,11 @@ mod tests {
             strength: 10.0,
             head: head.clone(),
         };
-        assert!(!probe.at_grid_edge());
+        assert!(!probe.at_strength_edge());
         let probe = Probe {
             strength: 100.0,
             ..probe
         };
-        assert!(probe.at_grid_edge());
+        assert!(probe.at_strength_edge());
     }
 }
