@@ -17,6 +17,7 @@ pub mod config;
 pub mod control;
 pub mod dataset;
 pub mod drive;
+pub mod fit;
 pub mod hw;
 pub mod image;
 pub mod policy;

@@ -18,18 +18,19 @@ mod run;
 mod samples;
 mod score;
 mod sim;
-#[cfg(feature = "train")]
 mod train;
 #[cfg(feature = "train")]
 mod train_bench;
 #[cfg(feature = "train")]
 mod train_ddpg;
 #[cfg(feature = "train")]
+mod train_il;
 mod train_init;
 #[cfg(feature = "train")]
 mod train_plot;
-#[cfg(feature = "train")]
 mod train_probe;
+#[cfg(feature = "train")]
+mod train_report;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -94,17 +95,11 @@ enum Command {
     /// Poses for a recording without them (visual odometry on the floor, fused with the
     /// wheel commands), written to a new tub; or, with --check, its drift against known poses.
     Poses(poses::PosesArgs),
-    /// Train policies: imitation learning on demonstrations, DDPG fine-tuning in the
-    /// simulator (needs a build with `--features train`).
-    #[cfg(feature = "train")]
+    /// Train policies: a pretrained backbone's output layer in closed form (`train probe`,
+    /// every build); imitation learning and DDPG fine-tuning in the simulator (a build with
+    /// `--features train`).
     #[command(subcommand)]
     Train(train::TrainCommand),
-    /// Train policies (this build has no trainer: build with `--features train`).
-    #[cfg(not(feature = "train"))]
-    Train {
-        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
-        args: Vec<String>,
-    },
     /// Put jetpilot into a JetBot SD card image before flashing it.
     #[command(subcommand)]
     Image(image::ImageCommand),
@@ -134,12 +129,7 @@ pub fn main() -> ExitCode {
         Command::Eval(args) => sim::eval(args),
         Command::Score(args) => score::main(args),
         Command::Poses(args) => poses::main(args),
-        #[cfg(feature = "train")]
         Command::Train(cmd) => train::main(cmd),
-        #[cfg(not(feature = "train"))]
-        Command::Train { .. } => Err(anyhow::anyhow!(
-            "this jetpilot was built without the trainer: build it with `cargo build --release --features train`"
-        )),
     };
     match result {
         Ok(code) => code,

@@ -53,7 +53,7 @@ pub struct RecordArgs {
 }
 
 /// `--web [ADDR]` onto the config's `[web]`.
-fn with_web(mut cfg: Config, web: Option<&str>) -> anyhow::Result<Config> {
+pub(super) fn with_web(mut cfg: Config, web: Option<&str>) -> anyhow::Result<Config> {
     if let Some(addr) = web {
         cfg.web.enabled = true;
         if !addr.is_empty() {
@@ -85,9 +85,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
         Box::new(policy),
         Some(&model),
         source,
+        None,
         clock,
         args.duration,
-        false,
+        Start::Waiting,
     )
 }
 
@@ -114,9 +115,10 @@ pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
         policy,
         args.model.as_deref(),
         source,
+        None,
         clock,
         args.duration,
-        true,
+        Start::Recording,
     )
 }
 
@@ -202,17 +204,33 @@ fn teleop_parts(
     }))
 }
 
+/// How a run with a gamepad or web page begins.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Start {
+    /// In Manual, waiting for the human (a real robot: nothing moves until asked).
+    Waiting,
+    /// `jetpilot record`: in Manual, the tub opened now.
+    Recording,
+    /// The autopilot engaged from the start, the page or pad able to take over (the
+    /// simulator, where nothing can be hurt).
+    Autopilot,
+}
+
+/// The daemon with the config's human side (gamepad, web page, panel); `motors` `None`
+/// opens the config's motor driver.
 #[allow(clippy::too_many_arguments)]
-fn drive_with(
+pub(super) fn drive_with(
     cfg: &Config,
     config_path: &Path,
     policy: Box<dyn Policy + Send>,
     model: Option<&Path>,
     source: Box<dyn jetpilot::camera::FrameSource>,
+    motors: Option<Box<dyn jetpilot::hw::MotorOutput>>,
     clock: Arc<dyn Clock>,
     duration: Option<f64>,
-    recording: bool,
+    start: Start,
 ) -> anyhow::Result<ExitCode> {
+    let recording = start == Start::Recording;
     let cancel = tokio_util::sync::CancellationToken::new();
     let _stop_reader = cancel.clone().drop_guard();
     // The web page: its requests go to the actuator, the frames it acted on come back.
@@ -227,8 +245,16 @@ fn drive_with(
         (RemoteControl::new(hb, scales), remote_rx)
     });
     let output = policy.contract().output;
-    let teleop = teleop_parts(cfg, model, recording, &cancel, remote)?;
-    let motors = setup::open_motors(cfg, clock.clone())?;
+    let mut teleop = teleop_parts(cfg, model, recording, &cancel, remote)?;
+    if start == Start::Autopilot
+        && let Some(t) = teleop.as_mut()
+    {
+        t.modes = t.modes.clone().engaged();
+    }
+    let motors = match motors {
+        Some(m) => m,
+        None => setup::open_motors(cfg, clock.clone())?,
+    };
     let (status_tx, status_rx) = tokio::sync::watch::channel(Default::default());
     let status_rx_web = status_tx.subscribe();
     let panel = if cfg.oled.enabled || cfg.buzzer.enabled {

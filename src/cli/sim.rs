@@ -96,9 +96,16 @@ pub struct SimArgs {
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
     /// Run under the real daemon (capture and inference threads, actuator, watchdog) in
-    /// real time, instead of the lockstep loop on a simulated clock. Needs a model.
-    #[arg(long, conflicts_with_all = ["expert", "record", "png"])]
+    /// real time, instead of the lockstep loop on a simulated clock. Needs a model. With
+    /// --png DIR it writes DIR/trace.png.
+    #[arg(long, conflicts_with_all = ["expert", "record", "real"])]
     realtime: bool,
+    /// With --realtime: serve the web page too (the video, the modes, the sliders, driving
+    /// from the browser), as `jetpilot run --web` does; ADDR overrides `web.bind` (default
+    /// 127.0.0.1:8887). The autopilot is engaged from the start; the page can take over.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "",
+          requires = "realtime")]
+    web: Option<String>,
     /// Record the drive as demonstrations: a DonkeyCar tub v2 (frames, wheels, angle/throttle,
     /// poses, rewards, JetBot target labels) in this folder.
     #[arg(long, value_name = "DIR")]
@@ -376,7 +383,17 @@ fn print_result(r: &EvalResult) {
 /// The mat from above with the driven path and the interventions. With random layouts,
 /// the road drawn is the last one, so only what happened on it is shown.
 fn write_trace(rig: &SimRig, driven: &Driven, path: &Path) -> anyhow::Result<()> {
-    let since = rig.world.layout_drawn_at_s().unwrap_or(0.0);
+    draw_trace(&rig.world, &driven.trace, &driven.intervention_times, path)
+}
+
+/// The mat from above with `trace`'s path and the world's interventions (at `times`).
+fn draw_trace(
+    world: &jetpilot::sim::world::World,
+    trace: &[(f64, Pose2)],
+    times: &[f64],
+    path: &Path,
+) -> anyhow::Result<()> {
+    let since = world.layout_drawn_at_s().unwrap_or(0.0);
     if since > 0.0 {
         println!(
             "{}: the last random layout, from {since:.1} s on (each layout lasts sim.layouts.every_s)",
@@ -384,24 +401,22 @@ fn write_trace(rig: &SimRig, driven: &Driven, path: &Path) -> anyhow::Result<()>
         );
     }
     let texture = jetpilot::sim::render::MatTexture::new(
-        &rig.world.track.paint(),
-        rig.world.track.mat_size(),
+        &world.track.paint(),
+        world.track.mat_size(),
         200.0,
         [96, 120, 92],
         [150, 130, 110],
     )?;
-    let poses: Vec<Pose2> = driven
-        .trace
+    let poses: Vec<Pose2> = trace
         .iter()
         .filter(|(t, _)| *t >= since)
         .map(|(_, p)| *p)
         .collect();
-    let marks: Vec<(Pose2, [u8; 3])> = rig
-        .world
+    let marks: Vec<(Pose2, [u8; 3])> = world
         .stats
         .intervention_poses
         .iter()
-        .zip(&driven.intervention_times)
+        .zip(times)
         .filter(|(_, t)| **t >= since)
         .map(|(p, _)| (*p, [220, 30, 30]))
         .collect();
@@ -417,7 +432,14 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         cfg.sim.expert.swerve_every_s = s;
     }
     if args.realtime {
-        return realtime(&cfg, args.model.as_deref(), args.seconds);
+        let cfg = super::run::with_web(cfg, args.web.as_deref())?;
+        return realtime(
+            &cfg,
+            &args.config,
+            args.model.as_deref(),
+            args.seconds,
+            args.png.as_deref(),
+        );
     }
     if let (Some(n), Some(dir)) = (args.scatter, &args.record_xy) {
         let params = jetpilot::sim::scatter::ScatterParams {
@@ -618,17 +640,24 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// `jetpilot sim --realtime`: the unchanged daemon drives the simulated car.
-fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<ExitCode> {
+/// `jetpilot sim --realtime`: the unchanged daemon drives the simulated car, with the web
+/// page when the config (or --web) turns it on.
+fn realtime(
+    cfg: &Config,
+    config_path: &Path,
+    model: Option<&Path>,
+    seconds: f64,
+    png: Option<&Path>,
+) -> anyhow::Result<ExitCode> {
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::{Arc, Mutex};
 
     use jetpilot::clock::{Clock, MonotonicClock};
-    use jetpilot::drive::{self, Parts};
     use jetpilot::sim::realtime::{SimSource, spawn_physics};
 
+    let model = model.unwrap_or(&cfg.model.path);
     let rig = setup::build(cfg)?;
-    let policy = jetpilot::drive::setup::load_policy(cfg, model)?;
+    let policy = jetpilot::drive::setup::load_policy(cfg, Some(model))?;
     let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
     let world = Arc::new(Mutex::new(rig.world));
     let size = (cfg.sim.camera.width, cfg.sim.camera.height);
@@ -641,31 +670,25 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
         stop.clone(),
     )
     .context("cannot start the physics thread")?;
-    let parts = Parts {
-        source: Box::new(source),
-        policy: Box::new(policy),
-        motors: Box::new(rig.motors),
+    if cfg.web.enabled {
+        println!(
+            "web page: http://{}/ (the car drives itself; Manual on the page takes over)",
+            cfg.web.bind
+        );
+    }
+    let outcome = super::run::drive_with(
+        cfg,
+        config_path,
+        Box::new(policy),
+        Some(model),
+        Box::new(source),
+        Some(Box::new(rig.motors)),
         clock,
-        teleop: None,
-        status: None,
-        live: None,
-    };
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("cannot start the async runtime")?;
-    let params = DriveParams::from_config(cfg);
-    let outcome = runtime.block_on(async {
-        drive::run(
-            parts,
-            params,
-            tokio::time::sleep(std::time::Duration::from_secs_f64(seconds)),
-        )
-        .await
-    });
+        Some(seconds),
+        super::run::Start::Autopilot,
+    );
     stop.store(true, Ordering::Relaxed);
-    let _ = physics.join();
+    let trace = physics.join().unwrap_or_default();
     let w = world.lock().unwrap_or_else(|p| p.into_inner());
     let s = &w.stats;
     println!(
@@ -677,16 +700,13 @@ fn realtime(cfg: &Config, model: Option<&Path>, seconds: f64) -> anyhow::Result<
         w.laps(),
         s.distance_m
     );
-    match outcome {
-        Ok((_, report)) => {
-            println!("{report}");
-            Ok(ExitCode::SUCCESS)
-        }
-        Err((e, report)) => {
-            println!("fault: {report}");
-            Err(e.into())
-        }
+    if let Some(dir) = png {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join("trace.png");
+        draw_trace(&w, &trace.poses, &trace.intervention_times, &path)?;
+        println!("wrote {}", path.display());
     }
+    outcome
 }
 
 /// A number within `lo..=hi` (`unit` names it in the error).

@@ -1,26 +1,25 @@
-//! `jetpilot train il` (imitation learning) and `jetpilot train ddpg` (fine-tuning in the
-//! simulator), built with the cargo feature `train`.
+//! `jetpilot train`: `train probe` (a pretrained backbone's output layer fitted in closed
+//! form) is in every build; `train il` (imitation learning), `train ddpg` (fine-tuning in
+//! the simulator) and their tools need the cargo feature `train` (burn).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
 use jetpilot::config::Config;
-use jetpilot::policy::{ModelContract, OutputKind};
-use jetpilot::train::TrainDevice;
-use jetpilot::train::augment::Augment;
-use jetpilot::train::data::{self, LabelMap};
-use jetpilot::train::il::{self, IlOptions};
+use jetpilot::policy::OutputKind;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum TrainCommand {
     /// Imitation learning (behaviour cloning) on demonstrations: DonkeyCar tubs from
     /// `jetpilot record` / `jetpilot sim --record`, or JetBot road-following xy folders.
     /// Writes best.onnx (lowest test loss), last.onnx, il_log.csv, il_curve.png.
-    Il(IlArgs),
+    #[cfg(feature = "train")]
+    Il(super::train_il::IlArgs),
     /// DDPG fine-tuning in the replayed-frame simulator, bootstrapped with the imitation
     /// policy and the demonstrations' rewards (DDPGfD). Writes best.onnx (highest autonomy
     /// in the 600 s test).
+    #[cfg(feature = "train")]
     Ddpg(super::train_ddpg::DdpgArgs),
     /// Fit a pretrained backbone's output layer in closed form (ridge regression on its
     /// final feature map, pooled into cells; the backbone kept as it is): minutes where a
@@ -29,57 +28,44 @@ pub enum TrainCommand {
     Probe(super::train_probe::ProbeArgs),
     /// Measure the trainer: burn's raw step against imitation learning's images/s, and
     /// DDPG's environment steps/s with the frozen backbone, updates included.
+    #[cfg(feature = "train")]
     Bench(super::train_bench::TrainBenchArgs),
     /// Summarise the paper's experiment (scripts/paper-experiment.sh writes the manifest):
     /// a Markdown table per track (mean ± sd over seeds after each wall budget) and
     /// experiment_<track>.png (rewards and autonomy against wall time, seed bands).
-    Report(ReportArgs),
+    #[cfg(feature = "train")]
+    Report(super::train_report::ReportArgs),
     /// Draw a line chart from a CSV with a header row: --y against --x, one line per value
     /// of --series; rows repeating an x within a line (seeds) are drawn as their mean in
     /// a band of their sd (scripts/real-finetune.sh plots its fine-tuning study with it).
+    #[cfg(feature = "train")]
     Plot(super::train_plot::PlotArgs),
+    /// il, ddpg, bench, report, plot: in a build with `--features train` only.
+    #[cfg(not(feature = "train"))]
+    #[command(external_subcommand)]
+    NotBuilt(Vec<String>),
 }
 
-#[derive(Debug, clap::Args)]
-pub struct ReportArgs {
-    /// The manifest: `budgets_min = [..]` and one `[[run]]` per method, seed and track.
-    #[arg(long, value_name = "FILE")]
-    manifest: PathBuf,
-    /// Folder for experiment.md and the figures (default: the manifest's folder).
-    #[arg(short, long, value_name = "DIR")]
-    out: Option<PathBuf>,
-}
-
-fn report_main(args: ReportArgs) -> anyhow::Result<ExitCode> {
-    use jetpilot::train::experiment;
-    let experiment::Experiment {
-        runs,
-        budgets_min: budgets,
-        test_seconds,
-    } = experiment::load(&args.manifest)?;
-    let out = match args.out {
-        Some(o) => o,
-        None => args
-            .manifest
-            .parent()
-            .map(Path::to_path_buf)
-            .unwrap_or_default(),
-    };
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let table = experiment::markdown(&runs, &budgets, test_seconds);
-    let md = out.join("experiment.md");
-    std::fs::write(&md, &table).with_context(|| format!("writing {}", md.display()))?;
-    let max = budgets.iter().copied().fold(1.0, f64::max);
-    let (figures, warning) = experiment::figures(&runs, max, test_seconds, &out)?;
-    if let Some(w) = warning {
-        tracing::warn!("{w}");
+pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
+    match cmd {
+        #[cfg(feature = "train")]
+        TrainCommand::Il(args) => super::train_il::main(args),
+        #[cfg(feature = "train")]
+        TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
+        TrainCommand::Probe(args) => super::train_probe::main(args),
+        #[cfg(feature = "train")]
+        TrainCommand::Bench(args) => super::train_bench::main(args),
+        #[cfg(feature = "train")]
+        TrainCommand::Report(args) => super::train_report::main(args),
+        #[cfg(feature = "train")]
+        TrainCommand::Plot(args) => super::train_plot::main(args),
+        #[cfg(not(feature = "train"))]
+        TrainCommand::NotBuilt(args) => Err(anyhow::anyhow!(
+            "`train {}` needs the trainer, and this jetpilot was built without it: build it with \
+             `cargo build --release --features train` (`train probe` is in every build)",
+            args.first().map(String::as_str).unwrap_or_default()
+        )),
     }
-    println!("{table}");
-    println!("wrote {}", md.display());
-    for f in figures {
-        println!("wrote {}", f.display());
-    }
-    Ok(ExitCode::SUCCESS)
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -99,263 +85,10 @@ impl From<Head> for OutputKind {
     }
 }
 
-#[derive(Debug, clap::Args)]
-pub struct IlArgs {
-    /// A tub or JetBot xy folder (repeat for several).
-    #[arg(long, value_name = "DIR", required = true)]
-    data: Vec<PathBuf>,
-    /// Output folder (created).
-    #[arg(short, long, value_name = "DIR")]
-    out: PathBuf,
-    /// Config giving the steering gains (labels of speed_steering models are the law
-    /// inverted on the recorded wheels) and the model contract (`[model]`).
-    #[arg(short, long, value_name = "FILE")]
-    config: Option<PathBuf>,
-    /// Start from `imagenet` (ImageNet weights: EfficientNet-Lite0 from
-    /// scripts/install-imagenet-weights.sh, or with --arch resnet18 torchvision's
-    /// resnet18-f37072fd.pth from torch's cache), an ONNX file (our export, or torchvision's
-    /// or the Lite0 port's layout from PyTorch) or a PyTorch state dict (.pth); a head of
-    /// another size (an ImageNet classifier's 1000) is replaced by a fresh 2-output one.
-    /// Default: random weights.
-    #[arg(long, value_name = "imagenet|FILE")]
-    init: Option<PathBuf>,
-    /// The network: of a random start, or of a .pth --init (an ONNX file says its own).
-    /// Default: efficientnet-lite0 for --init imagenet, else resnet18.
-    #[arg(long, value_enum)]
-    arch: Option<super::model::ArchArg>,
-    /// BatchNorm momentum while training (PyTorch's convention, the batch statistic's
-    /// weight; default 0.1).
-    #[arg(long, value_name = "M")]
-    bn_momentum: Option<f64>,
-    /// Keep every BatchNorm's running statistics (the start's, ImageNet's for a pretrained
-    /// start) and normalise with them in training too; their scale and shift still learn.
-    #[arg(long)]
-    freeze_bn: bool,
-    /// The backbone's learning rate as a share of --lr (the output layer always has --lr);
-    /// below 1 keeps more of a pretrained backbone; 0 freezes it, BatchNorm statistics
-    /// included, and trains the output layer alone (a linear probe, several times faster).
-    #[arg(long, default_value_t = 1.0, value_name = "SHARE")]
-    backbone_lr: f64,
-    /// Network input size (default: the config's `model.input_size`).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(32..=1024))]
-    input_size: Option<u32>,
-    /// What the outputs mean (default: the config's `model.output`).
-    #[arg(long, value_enum)]
-    head: Option<Head>,
-    #[arg(long, default_value_t = 50)]
-    epochs: usize,
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
-    batch: u64,
-    /// Adam learning rate.
-    #[arg(long, default_value_t = 1e-3)]
-    lr: f64,
-    /// Share of the demonstrations held out to pick the best epoch.
-    #[arg(long, default_value_t = 0.1)]
-    test_fraction: f32,
-    /// Seed of the split, the shuffles, the augmentation and a random initialisation.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// No flip and no colour jitter.
-    #[arg(long)]
-    no_augment: bool,
-    /// xy heads: shift each picture by up to this fraction of its side, the target with it
-    /// (0: off, JetBot's notebook; 0.25: up to a quarter of the frame).
-    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
-    shift: f32,
-    /// Share of the images (0..1) given a random convolution (RandConv: a random 1x1 to 7x7
-    /// colour filter blended with the picture, so textures and colours vary and shapes
-    /// stay); 0: off.
-    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
-    rand_conv: f32,
-    /// Frames mixed into every epoch (repeat for several folders): sim demonstrations while
-    /// fine-tuning on real frames, say. Never held out: the best epoch is picked on --data.
-    #[arg(long, value_name = "DIR")]
-    mix: Vec<PathBuf>,
-    /// The --mix frames' share of each epoch's images, 0..0.95 (default 0.5: as many as
-    /// --data's training frames).
-    #[arg(long, value_name = "FRACTION")]
-    mix_share: Option<f32>,
-    /// Continue after the last finished epoch in --out (last.onnx and Adam's state
-    /// il_optim.bpk).
-    #[arg(long)]
-    resume: bool,
-    /// Threads decoding images (default: the number of cores).
-    #[arg(long)]
-    decode_threads: Option<usize>,
-    #[command(flatten)]
-    target: super::train::DeviceArg,
-}
-
-/// `--device`, shared by `train il`, `train ddpg` and `train bench`.
-#[derive(Debug, clap::Args)]
-pub struct DeviceArg {
-    /// Where the networks train: flex (burn's CPU backend) or, with the build feature
-    /// `train-wgpu`, wgpu (a GPU through Vulkan, Metal or DX12; NVIDIA's too) or one
-    /// adapter: wgpu:discrete[:N], wgpu:integrated[:N], wgpu:cpu (a software driver).
-    #[arg(long, default_value = "flex", value_name = "DEVICE")]
-    pub device: TrainDevice,
-}
-
-pub fn main(cmd: TrainCommand) -> anyhow::Result<ExitCode> {
-    match cmd {
-        TrainCommand::Il(args) => il_main(args),
-        TrainCommand::Ddpg(args) => super::train_ddpg::main(args),
-        TrainCommand::Probe(args) => super::train_probe::main(args),
-        TrainCommand::Bench(args) => super::train_bench::main(args),
-        TrainCommand::Report(args) => report_main(args),
-        TrainCommand::Plot(args) => super::train_plot::main(args),
-    }
-}
-
 /// The config, or the defaults when none is given.
 pub fn config(path: Option<&PathBuf>) -> anyhow::Result<Config> {
     match path {
         Some(p) => Config::load(p).with_context(|| format!("loading {}", p.display())),
         None => Ok(Config::default()),
     }
-}
-
-/// Fewer held-out frames than this make `best.onnx` a noisy pick (`train il` warns).
-const FEW_HELD_OUT: usize = 25;
-
-fn il_main(args: IlArgs) -> anyhow::Result<ExitCode> {
-    let cfg = config(args.config.as_ref())?;
-    let mut contract: ModelContract = cfg.model.fallback_contract();
-    let start = super::train_init::resolve(args.init.as_deref(), args.arch.map(Into::into))?;
-    super::train_init::adopt_normalisation(&start, &mut contract);
-    if let Some(s) = args.input_size {
-        contract.input_size = s;
-    }
-    if let Some(h) = args.head {
-        contract.output = h.into();
-    }
-    if !(0.0..1.0).contains(&args.test_fraction) {
-        anyhow::bail!(
-            "--test-fraction must be in 0..1, got {}",
-            args.test_fraction
-        );
-    }
-    il::check_rand_conv(args.rand_conv, &args.out)?;
-    let labels = LabelMap::new(contract.output, &cfg.control.gains());
-    let threads = args.decode_threads.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(2)
-    });
-    let t0 = std::time::Instant::now();
-    let mix_share = args.mix_share.unwrap_or(0.5);
-    il::check_mix_share(mix_share, &args.out)?;
-    if args.mix.is_empty() && args.mix_share.is_some() {
-        tracing::warn!("--mix-share without --mix: there is nothing to mix in");
-    }
-    let mut dataset = data::load(&args.data, &contract, &labels, threads)?;
-    if !args.mix.is_empty() {
-        let mix = data::load(&args.mix, &contract, &labels, threads).context("--mix")?;
-        dataset.mix_in(mix)?;
-    }
-    const SHOWN: usize = 20;
-    for w in dataset.warnings.iter().take(SHOWN) {
-        tracing::warn!("{w}");
-    }
-    if dataset.warnings.len() > SHOWN {
-        tracing::warn!("... and {} more warnings", dataset.warnings.len() - SHOWN);
-    }
-    tracing::info!(
-        samples = dataset.own(),
-        mixed_in = dataset.samples.len() - dataset.own(),
-        size = contract.input_size,
-        output = contract.output.as_str(),
-        seconds = format!("{:.1}", t0.elapsed().as_secs_f64()),
-        "demonstrations decoded"
-    );
-    let mut opts = IlOptions::paper(args.out.clone(), contract, labels);
-    opts.init = start.init;
-    opts.arch = start.arch;
-    if let Some(m) = args.bn_momentum {
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&m),
-            "--bn-momentum must be in 0..1, got {m}"
-        );
-        opts.bn_momentum = m;
-    }
-    anyhow::ensure!(
-        args.backbone_lr.is_finite() && args.backbone_lr >= 0.0,
-        "--backbone-lr must be 0 or more (a share of --lr), got {}",
-        args.backbone_lr
-    );
-    opts.freeze_bn = args.freeze_bn;
-    opts.backbone_lr = args.backbone_lr;
-    opts.epochs = args.epochs;
-    opts.batch = args.batch as usize;
-    opts.lr = args.lr;
-    opts.test_fraction = args.test_fraction;
-    opts.seed = args.seed;
-    opts.resume = args.resume;
-    opts.device = args.target.device;
-    opts.progress = !cfg!(test);
-    if args.no_augment {
-        opts.augment = Augment::NONE;
-    }
-    opts.augment.shift = args.shift;
-    opts.augment.rand_conv = args.rand_conv;
-    opts.mix_share = mix_share;
-    let report = il::train(&dataset, &opts, |e| {
-        tracing::info!(
-            epoch = e.epoch,
-            train_loss = format!("{:.5}", e.train_loss),
-            test_loss = format!("{:.5}", e.test_loss),
-            images_per_s = format!("{:.1}", e.images_per_s),
-            "epoch done"
-        );
-    })?;
-    if let Some(w) = &report.plot_warning {
-        tracing::warn!("{w}");
-    }
-    println!(
-        "imitation learning: {} epochs on {} train / {} test frames; best test loss {:.5} at epoch {} -> {}",
-        report.state.epochs_done,
-        report.train_samples,
-        report.test_samples,
-        report.state.best_test_loss,
-        report.state.best_epoch,
-        report.best_path.display()
-    );
-    if report.test_samples == 0 {
-        tracing::warn!(
-            "no frames held out (--test-fraction 0): best.onnx is the epoch with the lowest \
-             training loss{}",
-            if report.mixed_pool > 0 {
-                ", mixed-in frames included"
-            } else {
-                ""
-            }
-        );
-    } else if report.test_samples < FEW_HELD_OUT {
-        tracing::warn!(
-            "best.onnx is the epoch with the lowest loss on only {} held-out frame(s), a noisy pick; \
-             last.onnx is the whole budget's result (docs/results/sim-to-real.md, \"Seeds, the picked epoch\")",
-            report.test_samples
-        );
-    }
-    if report.mixed_pool > 0 {
-        println!(
-            "mixed in: {} frames an epoch from {} (--mix, {:.0} % of each epoch's images)",
-            report.mixed_per_epoch,
-            report.mixed_pool,
-            100.0 * report.mixed_per_epoch as f64
-                / (report.mixed_per_epoch + report.train_samples).max(1) as f64
-        );
-    }
-    println!(
-        "log: {}  curve: {}",
-        il::csv_path(&args.out).display(),
-        il::png_path(&args.out).display()
-    );
-    if dataset.skipped > 0 {
-        println!(
-            "skipped {} unreadable image(s): empty, truncated or missing files (named in the warnings above)",
-            dataset.skipped
-        );
-    }
-    Ok(ExitCode::SUCCESS)
 }

@@ -57,7 +57,7 @@ pub struct TrainBenchArgs {
     #[arg(long, value_delimiter = ',')]
     skip: Vec<String>,
     #[command(flatten)]
-    target: super::train::DeviceArg,
+    target: super::train_il::DeviceArg,
 }
 
 pub fn main(args: TrainBenchArgs) -> anyhow::Result<ExitCode> {

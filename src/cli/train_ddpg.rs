@@ -121,7 +121,7 @@ pub struct DdpgArgs {
     #[command(flatten)]
     road: super::sim::WorldArgs,
     #[command(flatten)]
-    target: super::train::DeviceArg,
+    target: super::train_il::DeviceArg,
 }
 
 pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {

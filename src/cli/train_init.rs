@@ -35,7 +35,7 @@ pub fn resolve(init: Option<&Path>, arch: Option<Arch>) -> anyhow::Result<Start>
         }
         Some(p) if is_pth(p) => Ok(state_dict(p.to_path_buf(), arch.unwrap_or(Arch::Resnet18))),
         Some(p) => {
-            let (weights, contract) = jetpilot::train::read_onnx(p)?;
+            let (weights, contract) = jetpilot::policy::onnx::read_net_weights(p)?;
             let own = weights.arch();
             if let Some(a) = arch.filter(|a| *a != own) {
                 anyhow::bail!(

@@ -1,5 +1,5 @@
 //! `jetpilot train probe`: a pretrained backbone as it is, its output layer fitted by
-//! ridge regression on the frames' pooled features (`train::probe`), in seconds.
+//! ridge regression on the frames' pooled features (`fit::probe`), in seconds.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -7,10 +7,9 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
-use jetpilot::policy::onnx::NetWeights;
+use jetpilot::fit::probe::{self, FeatureSession, Pooling};
+use jetpilot::policy::onnx::{NetWeights, write_model};
 use jetpilot::policy::{ModelContract, OutputKind, pytorch};
-use jetpilot::train::export::write_net_weights;
-use jetpilot::train::probe::{self, FeatureSession, Pooling};
 
 #[derive(Debug, clap::Args)]
 pub struct ProbeArgs {
@@ -154,7 +153,7 @@ pub fn main(args: ProbeArgs) -> anyhow::Result<ExitCode> {
         .clone()
         .context("train probe needs a backbone (--init)")?;
     let weights: NetWeights = match &start.contract {
-        Some(_) => jetpilot::train::read_onnx(&init)?.0,
+        Some(_) => jetpilot::policy::onnx::read_net_weights(&init)?.0,
         None => pytorch::read_state_dict(&init, start.arch)?,
     };
 
@@ -209,7 +208,12 @@ pub fn main(args: ProbeArgs) -> anyhow::Result<ExitCode> {
     let (pooling, fitted) = (best.pooling, &best.probe);
     let out_model = args.out.join("probe.onnx");
     let head = probe::unpool_head(&fitted.head, channels, side, pooling.grid);
-    write_net_weights(&probe::with_head(&weights, &head), &contract, &out_model)?;
+    let proto = probe::with_head(&weights, &head).model(
+        contract.input_size,
+        &contract,
+        env!("CARGO_PKG_VERSION"),
+    )?;
+    write_model(&out_model, &proto)?;
 
     let describe = |p: Pooling| {
         format!(

@@ -235,6 +235,14 @@ impl Modes {
         }
     }
 
+    /// The same machine with the autopilot engaged from the start (the simulator's demo);
+    /// the stick can take over at once.
+    pub fn engaged(mut self) -> Self {
+        self.mode = Mode::Auto;
+        self.takeover_armed = true;
+        self
+    }
+
     pub fn mode(&self) -> Mode {
         self.mode
     }

@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use super::Pose2;
 use super::world::World;
 use crate::camera::{Frame, FrameSource, Result as CameraResult};
 use crate::clock::Clock;
@@ -74,19 +75,30 @@ impl FrameSource for SimSource {
     }
 }
 
+/// What the physics thread saw of a drive: for the top-down trace of `sim --realtime --png`.
+#[derive(Debug, Clone, Default)]
+pub struct DriveTrace {
+    /// (simulated seconds, pose), ten a second.
+    pub poses: Vec<(f64, Pose2)>,
+    /// When each intervention happened, in the order of the world's `intervention_poses`.
+    pub intervention_times: Vec<f64>,
+}
+
 /// Steps the physics at `physics_hz` in real time and scores every control period, until
-/// `stop` is set.
+/// `stop` is set; the thread's result is the drive's [`DriveTrace`].
 pub fn spawn_physics(
     world: SharedWorld,
     physics_hz: f32,
     control_hz: f32,
     stop: Arc<AtomicBool>,
-) -> std::io::Result<std::thread::JoinHandle<()>> {
+) -> std::io::Result<std::thread::JoinHandle<DriveTrace>> {
     let dt = Duration::from_secs_f64(1.0 / physics_hz as f64);
     let per_score = ((physics_hz / control_hz).round() as u32).max(1);
+    let per_pose = ((physics_hz / 10.0).round() as u32).max(1);
     std::thread::Builder::new()
         .name("sim-physics".into())
         .spawn(move || {
+            let mut trace = DriveTrace::default();
             let mut due = Instant::now();
             let mut n = 0u32;
             while !stop.load(Ordering::Relaxed) {
@@ -94,8 +106,11 @@ pub fn spawn_physics(
                     let mut w = lock(&world);
                     w.advance(dt.as_secs_f32());
                     n += 1;
-                    if n % per_score == 0 {
-                        w.score();
+                    if n % per_score == 0 && w.score().intervention {
+                        trace.intervention_times.push(w.stats.time_s);
+                    }
+                    if n % per_pose == 0 {
+                        trace.poses.push((w.stats.time_s, w.pose()));
                     }
                 }
                 due += dt;
@@ -106,5 +121,6 @@ pub fn spawn_physics(
                     due = now; // fell behind: do not try to catch up in a burst
                 }
             }
+            trace
         })
 }

@@ -27,9 +27,7 @@ pub mod export;
 pub mod il;
 pub mod lite0;
 pub mod net;
-pub mod probe;
 pub mod resnet;
-pub mod ridge;
 pub mod tensors;
 
 pub use device::TrainDevice;
@@ -65,9 +63,6 @@ pub enum TrainError {
     Backend(String),
     #[error(transparent)]
     Onnx(#[from] crate::policy::onnx::OnnxError),
-    /// ONNX Runtime could not be loaded (`train probe` runs the backbone on it).
-    #[error(transparent)]
-    Policy(#[from] crate::policy::PolicyError),
     /// A demonstration folder, file or training output that cannot be used.
     #[error("{path}: {reason}")]
     Data { path: String, reason: String },

@@ -150,7 +150,7 @@ fn model_import_writes_the_backbone_with_a_fresh_seeded_head() {
         String::from_utf8_lossy(&run.stderr)
     );
     assert!(stdout.contains("1000-output head replaced"), "{stdout}");
-    let (back, c) = jetpilot::train::read_onnx(&out).unwrap();
+    let (back, c) = jetpilot::policy::onnx::read_net_weights(&out).unwrap();
     assert_eq!(c, contract(128));
     assert_eq!(back.arch(), Arch::EfficientNetLite0);
     let source = pytorch::read_state_dict(&file, Arch::EfficientNetLite0).unwrap();
@@ -249,7 +249,7 @@ fn a_torchvision_layout_resnet18_state_dict_imports() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let (back, c) = jetpilot::train::read_onnx(&out).unwrap();
+    let (back, c) = jetpilot::policy::onnx::read_net_weights(&out).unwrap();
     assert_eq!(c.input_size, 64);
     assert_eq!(back, NetWeights::Resnet18(w.with_fresh_head(2, 0)));
 }

@@ -959,3 +959,75 @@ fn each_training_episode_gets_a_new_layout() {
     assert_ne!(env.world().track, first);
     assert_ne!(env.observation(), &obs[..]);
 }
+
+/// One HTTP GET on loopback; the whole response as text ("" while nothing listens).
+fn http_get(port: u16, path: &str) -> String {
+    use std::io::{Read, Write};
+    let Ok(mut s) = std::net::TcpStream::connect(("127.0.0.1", port)) else {
+        return String::new();
+    };
+    let req = format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    let _ = s.set_read_timeout(Some(std::time::Duration::from_secs(2)));
+    let mut got = Vec::new();
+    if s.write_all(req.as_bytes()).is_err() || s.read_to_end(&mut got).is_err() {
+        return String::new();
+    }
+    String::from_utf8_lossy(&got).into_owned()
+}
+
+#[test]
+fn the_demo_drive_the_daemon_with_its_web_page_engaged_from_the_start_and_a_trace() {
+    // scripts/demo.sh's last step: `sim --realtime --web --png DIR`.
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 48, 4);
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(
+        &cfg,
+        format!("[model]\npath = {model:?}\n[sim.camera]\nwidth = 48\nheight = 48\n"),
+    )
+    .unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    let png = dir.path().join("out");
+    let child = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--realtime", "--seconds", "6", "--web"])
+        .arg(format!("127.0.0.1:{port}"))
+        .arg("--png")
+        .arg(&png)
+        .arg("--config")
+        .arg(&cfg)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The page answers while the car drives, and says the autopilot has it: no one pressed
+    // Auto.
+    let started = std::time::Instant::now();
+    let mut status = String::new();
+    while started.elapsed() < std::time::Duration::from_secs(5) {
+        status = http_get(port, "/api/status");
+        if status.contains("\"commands_written\"") && !status.contains("\"commands_written\":0,") {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    assert!(status.contains("\"mode\":\"auto\""), "{status}");
+    assert!(http_get(port, "/").contains("200 OK"));
+    let out = child.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains(&format!("web page: http://127.0.0.1:{port}/")),
+        "{text}"
+    );
+    assert!(commands_written(&text) >= 90, "{text}");
+    assert!(text.contains("interventions (autonomy"), "{text}");
+    let trace = image::open(png.join("trace.png")).unwrap();
+    assert!(trace.width() > 100 && trace.height() > 100);
+}

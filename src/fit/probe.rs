@@ -13,7 +13,7 @@ use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 
-use super::TrainError;
+use super::FitError;
 use super::ridge::{self, LinearHead, Validated};
 use crate::dataset::labelled::LabelledFrame;
 use crate::policy::onnx::{NetWeights, encode_model};
@@ -136,15 +136,9 @@ pub fn choose(
     folds: usize,
     strength: Option<f64>,
     rule: Rule,
-) -> Result<Chosen, TrainError> {
+) -> Result<Chosen, FitError> {
     if let Some(p) = poolings.iter().find(|p| p.grid == 0 || p.grid > side) {
-        return Err(TrainError::Data {
-            path: "--grid".into(),
-            reason: format!(
-                "{} cells a side, but the final map is {side}x{side}",
-                p.grid
-            ),
-        });
+        return Err(FitError::Grid { grid: p.grid, side });
     }
     let mut tried = Vec::with_capacity(poolings.len());
     for &pooling in poolings {
@@ -288,16 +282,14 @@ impl FeatureSession {
         weights: &NetWeights,
         contract: &ModelContract,
         threads: usize,
-    ) -> Result<Self, TrainError> {
+    ) -> Result<Self, FitError> {
         let map = weights.arch().final_map(contract.input_size);
         let proto =
             weights.backbone_model(contract.input_size, contract, env!("CARGO_PKG_VERSION"))?;
         let (_, env) = runtime::environment(None)?;
-        let ort_err = |e: ort::Error| TrainError::Backend(format!("ONNX Runtime: {e}"));
-        let session = runtime::session_builder(env, GraphOptimizationLevel::Level3, threads, false)
-            .map_err(ort_err)?
-            .commit_from_memory(&encode_model(&proto))
-            .map_err(ort_err)?;
+        let session =
+            runtime::session_builder(env, GraphOptimizationLevel::Level3, threads, false)?
+                .commit_from_memory(&encode_model(&proto))?;
         Ok(Self {
             session,
             pre: Preprocessor::new(contract),
@@ -319,27 +311,19 @@ impl FeatureSession {
 
     /// The final feature map (`[channels, side, side]`, flattened) of one RGB8 image of
     /// any size.
-    pub fn features(
-        &mut self,
-        width: u32,
-        height: u32,
-        rgb: &[u8],
-    ) -> Result<Vec<f32>, TrainError> {
-        let input = self
-            .pre
-            .run(width, height, rgb)
-            .map_err(|e| TrainError::Backend(format!("preprocessing: {e}")))?;
+    pub fn features(&mut self, width: u32, height: u32, rgb: &[u8]) -> Result<Vec<f32>, FitError> {
+        let input = self.pre.run(width, height, rgb)?;
         let s = self.size;
-        let ort_err = |e: ort::Error| TrainError::Backend(format!("ONNX Runtime: {e}"));
-        let tensor = TensorRef::from_array_view(([1usize, 3, s, s], input)).map_err(ort_err)?;
-        let outputs = self.session.run(ort::inputs![tensor]).map_err(ort_err)?;
-        let (_, data) = outputs[0].try_extract_tensor::<f32>().map_err(ort_err)?;
-        let (c, m) = (self.channels, self.map);
-        if data.len() != c * m * m {
-            return Err(TrainError::Backend(format!(
-                "the backbone gave {} values, expected a {c}x{m}x{m} map",
-                data.len()
-            )));
+        let tensor = TensorRef::from_array_view(([1usize, 3, s, s], input))?;
+        let outputs = self.session.run(ort::inputs![tensor])?;
+        let (_, data) = outputs[0].try_extract_tensor::<f32>()?;
+        let (channels, side) = (self.channels, self.map);
+        if data.len() != channels * side * side {
+            return Err(FitError::MapSize {
+                found: data.len(),
+                channels,
+                side,
+            });
         }
         Ok(data.to_vec())
     }
@@ -432,7 +416,7 @@ pub fn extract(
     frames: &[LabelledFrame],
     mirror: Option<usize>,
     mut progress: impl FnMut(usize, usize),
-) -> Result<ProbeData, TrainError> {
+) -> Result<ProbeData, FitError> {
     let mut data = ProbeData::default();
     for (i, frame) in frames.iter().enumerate() {
         let (w, h, mut rgb) = match crate::dataset::load_rgb(&frame.path) {
@@ -463,7 +447,7 @@ pub fn extract(
         progress(i + 1, frames.len());
     }
     if data.features.is_empty() {
-        return Err(TrainError::Data {
+        return Err(FitError::Data {
             path: frames
                 .first()
                 .map(|f| f.path.display().to_string())
@@ -502,10 +486,9 @@ pub fn fit(
     folds: usize,
     strength: Option<f64>,
     strengths: &[f64],
-) -> Result<Probe, TrainError> {
+) -> Result<Probe, FitError> {
     let x: Vec<&[f32]> = data.features.iter().map(Vec::as_slice).collect();
     let y: Vec<&[f32]> = data.labels.iter().map(|l| l.as_slice()).collect();
-    let ridge_err = |e: ridge::RidgeError| TrainError::Backend(e.to_string());
     let (validated, strength) = match strength {
         Some(s) => (Vec::new(), s),
         None => {
@@ -517,17 +500,16 @@ pub fn fit(
                 &data.original,
                 strengths,
                 row_error(output),
-            )
-            .map_err(ridge_err)?;
+            )?;
             let best = v
                 .iter()
                 .min_by(|a, b| a.error.total_cmp(&b.error))
                 .map(|b| b.strength)
-                .ok_or_else(|| TrainError::Backend("ridge: no strengths to choose from".into()))?;
+                .ok_or(ridge::RidgeError::NoStrengths)?;
             (v, best)
         }
     };
-    let head = ridge::fit(&x, &y, strength).map_err(ridge_err)?;
+    let head = ridge::fit(&x, &y, strength)?;
     Ok(Probe {
         validated,
         strength,

@@ -20,6 +20,8 @@ pub enum RidgeError {
     Strength(f64),
     #[error("ridge: cross-validation needs at least 2 folds with frames in each, got {0}")]
     Folds(usize),
+    #[error("ridge: no strengths to choose from")]
+    NoStrengths,
 }
 
 /// `y = weight · f + bias` on raw features.
