@@ -89,10 +89,59 @@ pub fn capture_time_s(name: &str) -> Option<f64> {
     let mid = u64::from_str_radix(mid, 16).ok()?;
     let hi = u64::from_str_radix(hi, 16).ok()? & 0x0fff;
     let ticks = (hi << 48) | (mid << 32) | low;
-    /// 100 ns steps from the Gregorian reform to the Unix epoch.
-    const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
     // Subtract in integers: as f64, 1.4e17 ticks would lose the 100 ns steps.
     Some((ticks as i64 - UNIX_EPOCH_TICKS as i64) as f64 / 1e7)
+}
+
+/// 100 ns steps from the Gregorian reform (1582-10-15, a version-1 UUID's epoch) to the
+/// Unix epoch.
+pub const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
+
+/// A version-1 UUID string (`uuid1()`, as JetBot's notebooks name their samples), for
+/// `unix_ticks` 100 ns steps since the Unix epoch, a 14-bit `clock_seq` and a 48-bit `node`
+/// (a random node should have its multicast bit, `node[0] & 1`, set, as RFC 4122 says for
+/// nodes that are no network card's address). [`capture_time_s`] reads the time back.
+pub fn uuid1(unix_ticks: u64, clock_seq: u16, node: [u8; 6]) -> String {
+    let t = unix_ticks + UNIX_EPOCH_TICKS;
+    let node: String = node.iter().map(|b| format!("{b:02x}")).collect();
+    format!(
+        "{:08x}-{:04x}-{:04x}-{:02x}{:02x}-{node}",
+        t & 0xffff_ffff,
+        (t >> 32) & 0xffff,
+        ((t >> 48) & 0x0fff) | 0x1000,
+        0x80 | ((clock_seq >> 8) & 0x3f),
+        clock_seq & 0xff,
+    )
+}
+
+/// Makes version-1 UUIDs that never repeat within one process: a random node and clock
+/// sequence, and a time that moves on by at least one step per UUID (two samples saved in
+/// the same 100 ns, or a clock stepped back, still get distinct names).
+#[derive(Debug, Clone)]
+pub struct Uuid1Clock {
+    last: u64,
+    clock_seq: u16,
+    node: [u8; 6],
+}
+
+impl Uuid1Clock {
+    pub fn new(rng: &mut impl rand::Rng) -> Self {
+        let mut node = [0u8; 6];
+        rng.fill(&mut node);
+        node[0] |= 0x01;
+        Self {
+            last: 0,
+            clock_seq: rng.random::<u16>() & 0x3fff,
+            node,
+        }
+    }
+
+    /// The UUID for `now` (time since the Unix epoch).
+    pub fn next(&mut self, now: std::time::Duration) -> String {
+        let ticks = (now.as_nanos() / 100) as u64;
+        self.last = ticks.max(self.last + 1);
+        uuid1(self.last, self.clock_seq, self.node)
+    }
 }
 
 /// A random v4-style UUID string (`xxxxxxxx-xxxx-4xxx-[89ab]xxx-xxxxxxxxxxxx`), as JetBot
@@ -237,10 +286,21 @@ pub fn write_sample(
             path.display()
         )));
     }
-    let tmp = temp_path(&path);
-    std::fs::write(&tmp, jpeg_bytes).map_err(io_err(&tmp))?;
-    std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
+    write_new(&path, jpeg_bytes)?;
     Ok(path)
+}
+
+/// Writes `bytes` to the new file `path` through a temporary name and a rename; on a
+/// failure (a full disk) the temporary file is removed, so no partial file is left.
+pub(crate) fn write_new(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = temp_path(path);
+    let written = std::fs::write(&tmp, bytes)
+        .map_err(io_err(&tmp))
+        .and_then(|()| std::fs::rename(&tmp, path).map_err(io_err(path)));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
 }
 
 #[cfg(test)]
@@ -385,6 +445,34 @@ mod tests {
             folder.samples()[0].label(224, 224),
             label(57, 101, 224, 224)
         );
+    }
+
+    #[test]
+    fn uuid1_worked_number_and_round_trip() {
+        // 2026-12-04 00:00:00 UTC = 1_796_342_400 s after the Unix epoch; Python's
+        // uuid.UUID(fields=...) for the same time, clock_seq 0x1234 and node 0123456789ab
+        // prints a5f98000-ef75-11f1-9234-0123456789ab.
+        let ticks = 1_796_342_400 * 10_000_000;
+        let u = uuid1(ticks, 0x1234, [0x01, 0x23, 0x45, 0x67, 0x89, 0xab]);
+        assert_eq!(u, "a5f98000-ef75-11f1-9234-0123456789ab");
+        let name = file_name(150, 60, &u);
+        assert_eq!(parse_file_name(&name), Some((150, 60)));
+        assert_eq!(capture_time_s(&name), Some(1_796_342_400.0));
+        // The clock never repeats, even for one instant asked twice or a clock stepped back.
+        let mut clock = Uuid1Clock::new(&mut rand_chacha::ChaCha8Rng::seed_from_u64(3));
+        let now = std::time::Duration::from_secs(1_796_342_400);
+        let a = clock.next(now);
+        let b = clock.next(now);
+        let c = clock.next(now - std::time::Duration::from_secs(5));
+        assert!(a != b && b != c && a != c, "{a} {b} {c}");
+        let t = |u: &str| capture_time_s(&file_name(1, 1, u)).unwrap();
+        assert_eq!(t(&a), 1_796_342_400.0);
+        // One 100 ns step apart (seconds as f64 cannot show it: read time_low).
+        let low = |u: &str| u64::from_str_radix(&u[..8], 16).unwrap();
+        assert_eq!((low(&b) - low(&a), low(&c) - low(&b)), (1, 1));
+        // Variant bits 10xx and a multicast (random) node.
+        assert!(matches!(&a[19..20], "8" | "9" | "a" | "b"), "{a}");
+        assert_eq!(u8::from_str_radix(&a[24..26], 16).unwrap() & 1, 1, "{a}");
     }
 
     #[test]

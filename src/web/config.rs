@@ -33,6 +33,12 @@ pub struct WebConfig {
     pub throttle_scale: f32,
     /// Browser sticks to wheels: full steering adds/subtracts this much per wheel.
     pub steering_scale: f32,
+    /// Click-to-label, road following: JetBot's `xy_XXX_YYY_<uuid>.jpg` folder. Default:
+    /// `dataset_xy` in the state directory. Made at the first click when its parent exists.
+    pub xy_dir: Option<PathBuf>,
+    /// Click-to-label, collision avoidance: the folder holding `free/` and `blocked/`.
+    /// Default: `dataset` in the state directory.
+    pub collision_dir: Option<PathBuf>,
 }
 
 impl Default for WebConfig {
@@ -48,6 +54,8 @@ impl Default for WebConfig {
             heartbeat_ms: 500,
             throttle_scale: 0.5,
             steering_scale: 0.3,
+            xy_dir: None,
+            collision_dir: None,
         }
     }
 }
@@ -72,6 +80,20 @@ impl WebConfig {
             return p.clone();
         }
         state_dir().join("web-token")
+    }
+
+    /// Where road clicks go: `xy_dir`, else `dataset_xy` in the state directory.
+    pub fn xy_folder(&self) -> PathBuf {
+        self.xy_dir
+            .clone()
+            .unwrap_or_else(|| state_dir().join("dataset_xy"))
+    }
+
+    /// Where free/blocked clicks go: `collision_dir`, else `dataset` in the state directory.
+    pub fn collision_folder(&self) -> PathBuf {
+        self.collision_dir
+            .clone()
+            .unwrap_or_else(|| state_dir().join("dataset"))
     }
 }
 

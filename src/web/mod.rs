@@ -1,9 +1,10 @@
 //! The daemon's web page (`[web]`): live video, gain sliders, modes, browser teleop with a
-//! dead-man, a record toggle, and `/metrics`. axum on the daemon's tokio runtime, beside
+//! dead-man, a record toggle, click-to-label ([`label`]), and `/metrics`. axum on the daemon's tokio runtime, beside
 //! the control loop and never in its way.
 //!
 //! ```text
 //!  actuator --LiveFrame (watch)--> video::encoder --JPEG (watch)--> each /video client
+//!                                       \--the frames sent--> label::RecentFrames <- a click
 //!  actuator --DaemonStatus (watch)--> each /ws client, /api/status, /metrics
 //!  each /ws client --RemoteMsg (bounded mpsc)--> actuator (drive::remote, drive::teleop)
 //! ```
@@ -13,6 +14,7 @@
 
 pub mod auth;
 pub mod config;
+pub mod label;
 pub mod metrics;
 pub mod overlay;
 pub mod save;
@@ -93,6 +95,19 @@ impl WebServer {
         let addr = listener.local_addr().map_err(|e| bind_err(e.to_string()))?;
         let cancel = CancellationToken::new();
         let video_tx = Arc::new(watch::Sender::new(None));
+        if cfg.xy_dir.is_none() || cfg.collision_dir.is_none() {
+            // The default folders live in the state directory: make it, so a first click
+            // works (a configured folder's parent must exist: a missing drive is an error).
+            let state = config::state_dir();
+            if let Err(e) = std::fs::create_dir_all(&state) {
+                tracing::warn!(dir = %state.display(), error = %e, "web: cannot make the state directory; click-to-label will fail");
+            }
+        }
+        let labels = Arc::new(label::Labeller::new(
+            cfg.xy_folder(),
+            cfg.collision_folder(),
+            cfg.jpeg_quality,
+        ));
         let params = video::VideoParams {
             fps: cfg.video_fps,
             quality: cfg.jpeg_quality,
@@ -101,6 +116,7 @@ impl WebServer {
         tokio::spawn(video::encoder(
             links.live,
             video_tx.clone(),
+            labels.clone(),
             params,
             cancel.clone(),
         ));
@@ -111,6 +127,7 @@ impl WebServer {
             remote: links.remote,
             config_path: config_path.clone().map(Arc::new),
             next_client: Arc::new(AtomicU64::new(0)),
+            labels,
             page: Arc::new(server::PageInfo {
                 heartbeat_ms: cfg.heartbeat_ms,
                 output: output.as_str(),

@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{mpsc, watch};
 
 use super::auth;
+use super::label::{LabelKind, Labeller};
 use super::video::{self, Jpeg};
 use crate::control::SteeringGains;
 use crate::drive::DaemonStatus;
@@ -53,6 +54,8 @@ pub struct AppState {
     pub next_client: Arc<AtomicU64>,
     /// Sliders' and status' facts the page needs at start.
     pub page: Arc<PageInfo>,
+    /// Click-to-label's folders and the frames sent last.
+    pub labels: Arc<super::label::Labeller>,
 }
 
 /// Static facts for the page.
@@ -299,6 +302,18 @@ pub enum ClientMsg {
     },
     /// Write the daemon's gains into the config file.
     Save,
+    /// Click-to-label: save frame `seq` (the `X-Frame-Seq` of the picture shown) as a
+    /// `kind` sample; `x`, `y`: the clicked pixel of that picture.
+    Label {
+        kind: LabelKind,
+        seq: u64,
+        x: u32,
+        y: u32,
+    },
+    /// Remove the last sample this page saved.
+    UndoLabel,
+    /// The folders and their counts.
+    Labels,
 }
 
 impl ClientMsg {
@@ -332,7 +347,10 @@ impl ClientMsg {
                 integral_limit: current.integral_limit,
             }),
             ClientMsg::Record { on } => RemoteRequest::Record(*on),
-            ClientMsg::Save => return Ok(None),
+            ClientMsg::Save
+            | ClientMsg::Label { .. }
+            | ClientMsg::UndoLabel
+            | ClientMsg::Labels => return Ok(None),
         }))
     }
 }
@@ -392,6 +410,7 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
     // messages, its heartbeat among them, from being read.
     let (reply_tx, mut reply_rx) = mpsc::channel::<String>(4);
     let mut last_gains: Option<tokio::time::Instant> = None;
+    let mine = PageSamples::default();
     if !send(
         &mut socket,
         json(&serde_json::json!({"type": "hello", "client": id})),
@@ -422,7 +441,7 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
                     Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
                     Some(Ok(_)) => continue,
                 };
-                let reply = handle(&s, id, text.as_str(), &reply_tx, &mut last_gains).await;
+                let reply = handle(&s, id, text.as_str(), &reply_tx, &mut last_gains, &mine).await;
                 if let Some(r) = reply
                     && !send(&mut socket, r).await
                 {
@@ -442,12 +461,28 @@ async fn handle(
     text: &str,
     later: &mpsc::Sender<String>,
     last_gains: &mut Option<tokio::time::Instant>,
+    mine: &PageSamples,
 ) -> Option<String> {
     let error = |m: String| Some(json(&serde_json::json!({"type": "error", "message": m})));
     let msg: ClientMsg = match serde_json::from_str(text) {
         Ok(m) => m,
         Err(e) => return error(format!("bad message: {e}")),
     };
+    match msg {
+        ClientMsg::Label { kind, seq, x, y } => {
+            let (labels, mine) = (s.labels.clone(), mine.clone());
+            return later_reply(later, move || label(&labels, &mine, kind, seq, x, y));
+        }
+        ClientMsg::UndoLabel => {
+            let (labels, mine) = (s.labels.clone(), mine.clone());
+            return later_reply(later, move || undo_label(&labels, &mine));
+        }
+        ClientMsg::Labels => {
+            let labels = s.labels.clone();
+            return later_reply(later, move || label_counts(&labels, "label_counts", None));
+        }
+        _ => {}
+    }
     let (gains, holder) = {
         let st = s.status.borrow();
         (st.gains, st.remote_holder)
@@ -528,6 +563,80 @@ async fn handle(
     }
 }
 
+/// The samples one page saved, newest last (what its undo may remove).
+#[derive(Clone, Default)]
+struct PageSamples(Arc<std::sync::Mutex<Vec<PathBuf>>>);
+
+impl PageSamples {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<PathBuf>> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// Runs blocking `work` (file I/O) off the async threads; its reply reaches the page
+/// through `later`, so a slow disk never holds up this page's other messages.
+fn later_reply(
+    later: &mpsc::Sender<String>,
+    work: impl FnOnce() -> String + Send + 'static,
+) -> Option<String> {
+    let later = later.clone();
+    tokio::spawn(async move {
+        let reply = tokio::task::spawn_blocking(work).await.unwrap_or_else(|e| {
+            json(&serde_json::json!({"type": "error", "message": format!("labelling failed: {e}")}))
+        });
+        let _ = later.send(reply).await;
+    });
+    None
+}
+
+fn label_error(e: super::label::LabelError) -> String {
+    tracing::warn!(error = %e, "web: click-to-label");
+    json(&serde_json::json!({"type": "error", "message": e.to_string()}))
+}
+
+/// The counts reply (`kind`: `label_counts`, `labelled` or `unlabelled`), with the file
+/// just saved or removed.
+fn label_counts(labels: &Labeller, kind: &str, file: Option<&std::path::Path>) -> String {
+    json(&serde_json::json!({
+        "type": kind,
+        "counts": labels.counts(),
+        "file": file.map(|f| f.display().to_string()),
+        "xy_dir": labels.xy_dir.display().to_string(),
+        "collision_dir": labels.collision_dir.display().to_string(),
+    }))
+}
+
+fn label(
+    labels: &Labeller,
+    mine: &PageSamples,
+    kind: LabelKind,
+    seq: u64,
+    x: u32,
+    y: u32,
+) -> String {
+    match labels.save(kind, seq, x, y) {
+        Ok(path) => {
+            tracing::info!(file = %path.display(), seq, "web: sample saved");
+            mine.lock().push(path.clone());
+            label_counts(labels, "labelled", Some(&path))
+        }
+        Err(e) => label_error(e),
+    }
+}
+
+fn undo_label(labels: &Labeller, mine: &PageSamples) -> String {
+    let Some(path) = mine.lock().pop() else {
+        return label_error(super::label::LabelError::NothingToUndo);
+    };
+    match labels.undo(&path) {
+        Ok(()) => {
+            tracing::info!(file = %path.display(), "web: sample removed (undo)");
+            label_counts(labels, "unlabelled", Some(&path))
+        }
+        Err(e) => label_error(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -552,6 +661,26 @@ mod tests {
         assert!(serde_json::from_str::<ClientMsg>(r#"{"type":"drive","throttle":1}"#).is_err());
         let m: ClientMsg = serde_json::from_str(r#"{"type":"save"}"#).unwrap();
         assert_eq!(m.request(&g), Ok(None));
+        let m: ClientMsg =
+            serde_json::from_str(r#"{"type":"label","kind":"blocked","seq":7,"x":150,"y":60}"#)
+                .unwrap();
+        assert_eq!(
+            m,
+            ClientMsg::Label {
+                kind: LabelKind::Blocked,
+                seq: 7,
+                x: 150,
+                y: 60
+            }
+        );
+        assert_eq!(m.request(&g), Ok(None), "labels never reach the daemon");
+        for bad in [
+            r#"{"type":"label","kind":"road","seq":7,"x":1,"y":1}"#,
+            r#"{"type":"label","kind":"xy","seq":7,"x":-1,"y":1}"#,
+            r#"{"type":"label","kind":"xy","x":1,"y":1}"#,
+        ] {
+            assert!(serde_json::from_str::<ClientMsg>(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

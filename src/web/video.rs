@@ -4,7 +4,8 @@
 //! `web.video_fps` times a second and only while a browser watches, off the async threads
 //! (`spawn_blocking`). It puts the JPEG in a `watch` slot; every client's stream waits for
 //! that slot to change and sends the newest JPEG, so a client never gets a frame twice and
-//! a slow client simply skips frames: there is no queue to grow.
+//! a slow client simply skips frames: there is no queue to grow. The frames it sent are
+//! kept a short while for click-to-label ([`super::label`]).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -62,6 +63,7 @@ pub fn encode(frame: &LiveFrame, p: &VideoParams) -> Result<Bytes, image::ImageE
 pub async fn encoder(
     mut live: watch::Receiver<Option<LiveFrame>>,
     out: Arc<watch::Sender<Option<Arc<Jpeg>>>>,
+    labels: Arc<super::label::Labeller>,
     p: VideoParams,
     cancel: CancellationToken,
 ) {
@@ -79,8 +81,11 @@ pub async fn encoder(
             continue;
         };
         let seq = frame.seq;
+        let kept = frame.clone();
         match tokio::task::spawn_blocking(move || encode(&frame, &p)).await {
             Ok(Ok(bytes)) => {
+                // Kept before it is sent: a click on it always finds it.
+                labels.recent.push(kept);
                 out.send_replace(Some(Arc::new(Jpeg { seq, bytes })));
             }
             Ok(Err(e)) => tracing::warn!(error = %e, seq, "web video: cannot encode a frame"),
