@@ -68,6 +68,10 @@ pub enum LabelError {
     MissingFolder { dir: String, parent: String },
     #[error("not saved: the disk holding {dir} is full; free some space (the run goes on)")]
     DiskFull { dir: String },
+    #[error(
+        "not saved: {dir} is read-only for the daemon (under systemd, allow it with ReadWritePaths={dir} in a drop-in: docs/guides/web-page.md)"
+    )]
+    ReadOnly { dir: String },
     #[error("not saved: {0}")]
     Dataset(#[from] DatasetError),
     #[error("not saved: cannot encode frame {seq}: {why}")]
@@ -224,19 +228,16 @@ fn ensure_dir(dir: &Path) -> Result<(), LabelError> {
 
 /// A full disk (or quota) is said as such; other errors keep their file and reason.
 fn disk_error(e: DatasetError, dir: &Path) -> LabelError {
-    let full = match &e {
-        DatasetError::Io { source, .. } => {
-            source.kind() == std::io::ErrorKind::StorageFull
-                || source.kind() == std::io::ErrorKind::QuotaExceeded
-        }
-        _ => false,
+    use std::io::ErrorKind;
+    let kind = match &e {
+        DatasetError::Io { source, .. } => Some(source.kind()),
+        _ => None,
     };
-    if full {
-        LabelError::DiskFull {
-            dir: dir.display().to_string(),
-        }
-    } else {
-        LabelError::Dataset(e)
+    let dir = dir.display().to_string();
+    match kind {
+        Some(ErrorKind::StorageFull | ErrorKind::QuotaExceeded) => LabelError::DiskFull { dir },
+        Some(ErrorKind::ReadOnlyFilesystem) => LabelError::ReadOnly { dir },
+        _ => LabelError::Dataset(e),
     }
 }
 
@@ -381,6 +382,16 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "not saved: the disk holding /media/usb/dataset_xy is full; free some space (the run goes on)"
+        );
+        let read_only = DatasetError::Io {
+            path: "/media/usb/dataset_xy/.x.tmp".into(),
+            source: std::io::Error::from_raw_os_error(30),
+        };
+        let e = disk_error(read_only, Path::new("/media/usb/dataset_xy"));
+        assert!(
+            e.to_string()
+                .contains("read-only for the daemon (under systemd, allow it with ReadWritePaths=/media/usb/dataset_xy"),
+            "{e}"
         );
         let denied = DatasetError::Io {
             path: "/x".into(),
