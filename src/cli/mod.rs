@@ -13,6 +13,8 @@ mod model_optimize;
 mod model_quantize;
 mod panel;
 mod poses;
+#[cfg(test)]
+mod reference;
 mod replay_check;
 mod run;
 mod samples;
