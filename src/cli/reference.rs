@@ -1,8 +1,15 @@
-//! The CLI reference page, `docs/reference/cli-help.md`: every command's `--help`, made from
-//! the clap definitions, so the book cannot drift from the binary (a test compares them;
-//! `JETPILOT_BLESS=1` rewrites the page).
+//! The book's generated reference pages, so they cannot drift from the code (tests compare
+//! them; `JETPILOT_BLESS=1` rewrites them):
+//! - `docs/reference/cli-help.md`: every command's `--help`, from the clap definitions;
+//! - `docs/reference/config-keys.md`: every config key with its type and default, from
+//!   `Config::default()`, and the keys that are unset by default from the shipped configs,
+//!   each checked to parse; the meaning is the shipped configs' comment on the key.
+
+use std::collections::BTreeMap;
+use std::path::Path;
 
 use clap::CommandFactory;
+use jetpilot::config::Config;
 
 /// The page's text: one section per command, depth first, each with its long help at a
 /// fixed width of 100 columns.
@@ -40,7 +47,200 @@ fn section(out: &mut String, cmd: &mut clap::Command, path: &str) {
     }
 }
 
-#[cfg(all(test, feature = "train"))]
+/// One key of the config page.
+struct Key {
+    kind: &'static str,
+    default: Option<String>,
+    comment: Option<String>,
+}
+
+fn kind(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::String(_) => "string",
+        toml::Value::Integer(_) => "integer",
+        toml::Value::Float(_) => "float",
+        toml::Value::Boolean(_) => "bool",
+        toml::Value::Datetime(_) => "datetime",
+        toml::Value::Array(_) => "array",
+        toml::Value::Table(_) => "table",
+    }
+}
+
+/// `value` as TOML, shortened past 60 characters.
+fn shown(v: &toml::Value) -> String {
+    // An f32 default as the f32's shortest decimal (0.3, not 0.30000001192092896).
+    let s = match v {
+        toml::Value::Float(f) if f64::from(*f as f32) == *f => {
+            let short = (*f as f32).to_string();
+            if short.contains(['.', 'e', 'i', 'N']) {
+                short
+            } else {
+                format!("{short}.0")
+            }
+        }
+        v => v.to_string(),
+    };
+    if s.chars().count() > 60 {
+        format!("{} ...", s.chars().take(56).collect::<String>())
+    } else {
+        s
+    }
+}
+
+/// Dotted keys of `table` (sub-tables recursed into) into `keys`.
+fn flatten(prefix: &str, table: &toml::Table, keys: &mut BTreeMap<String, Key>) {
+    for (k, v) in table {
+        let key = format!("{prefix}{k}");
+        match v {
+            toml::Value::Table(t) => flatten(&format!("{key}."), t, keys),
+            v => {
+                keys.insert(
+                    key,
+                    Key {
+                        kind: kind(v),
+                        default: Some(shown(v)),
+                        comment: None,
+                    },
+                );
+            }
+        }
+    }
+}
+
+/// `key = value  # comment` lines of a shipped config, commented out (`# key = value`) or not,
+/// under their `[table]` (also commented out): `(dotted key, value text, comment)`.
+fn config_lines(text: &str) -> Vec<(String, String, Option<String>)> {
+    let mut table = String::new();
+    let mut out = Vec::new();
+    for line in text.lines() {
+        let l = line.trim().trim_start_matches('#').trim();
+        if let Some(name) = l.strip_prefix('[').and_then(|r| r.split_once(']')) {
+            let name = name.0.trim();
+            if !name.is_empty()
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_lowercase() || c == '_' || c == '.')
+            {
+                table = name.to_string();
+            }
+            continue;
+        }
+        let Some((k, rest)) = l.split_once('=') else {
+            continue;
+        };
+        let k = k.trim();
+        if k.is_empty()
+            || !k
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+        {
+            continue;
+        }
+        let (value, comment) = match rest.split_once(" #") {
+            Some((v, c)) => (
+                v.trim(),
+                Some(c.trim().to_string()).filter(|c| !c.is_empty()),
+            ),
+            None => (rest.trim(), None),
+        };
+        let key = if table.is_empty() {
+            k.to_string()
+        } else {
+            format!("{table}.{k}")
+        };
+        out.push((key, value.to_string(), comment));
+    }
+    out
+}
+
+/// Whether `key = value` alone parses as a config (the key exists, the value has its type).
+fn parses(key: &str, value: &str) -> bool {
+    let (table, k) = key.rsplit_once('.').unwrap_or(("", key));
+    let text = if table.is_empty() {
+        format!("{k} = {value}\n")
+    } else {
+        format!("[{table}]\n{k} = {value}\n")
+    };
+    toml::from_str::<Config>(&text).is_ok()
+}
+
+/// The config page.
+pub fn config_markdown(repo: &Path) -> String {
+    let mut keys = BTreeMap::new();
+    let mut root = toml::Table::try_from(Config::default()).unwrap_or_default();
+    if let Ok(g) = toml::Table::try_from(jetpilot::hw::gamepad::GamepadConfig::default()) {
+        root.insert("gamepad".into(), toml::Value::Table(g));
+    }
+    flatten("", &root, &mut keys);
+    let mut files: Vec<_> = std::fs::read_dir(repo.join("config"))
+        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).collect())
+        .unwrap_or_default();
+    files.retain(|p: &std::path::PathBuf| p.extension().is_some_and(|e| e == "toml"));
+    // The JetBot's and the simulator's configs speak first (their comments are the fullest).
+    files.sort_by_key(|p| {
+        let name = p.file_name().map(|n| n.to_string_lossy().to_string());
+        let rank = match name.as_deref() {
+            Some("jetbot.toml") => 0,
+            Some("sim.toml") => 1,
+            _ => 2,
+        };
+        (rank, p.clone())
+    });
+    for file in &files {
+        let text = std::fs::read_to_string(file).unwrap_or_default();
+        for (key, value, comment) in config_lines(&text) {
+            if let Some(k) = keys.get_mut(&key) {
+                if k.comment.is_none() {
+                    k.comment = comment;
+                }
+            } else if parses(&key, &value) {
+                let v: Option<toml::Value> = toml::from_str::<toml::Table>(&format!("v = {value}"))
+                    .ok()
+                    .and_then(|t| t.get("v").cloned());
+                keys.insert(
+                    key,
+                    Key {
+                        kind: v.as_ref().map_or("?", kind),
+                        default: None,
+                        comment,
+                    },
+                );
+            }
+        }
+    }
+    let mut out = String::from(
+        "# Config keys\n\n\
+         Generated from the code: each key's type and default come from `Config::default()`\n\
+         (`[gamepad]`: from its default, used when the table is present); keys unset by\n\
+         default (*unset*) are the ones the shipped configs in `config/` set or show commented\n\
+         out, each checked to parse. The meaning is the shipped configs' comment on the key\n\
+         (every key is explained in the config files and in `src/` beside its field). A test\n\
+         keeps it in step: after changing a key, run\n\
+         `JETPILOT_BLESS=1 scripts/test.sh -E 'test(/config_reference/)'`. How files are read\n\
+         and checked: [Configs](configs.md).\n",
+    );
+    let mut section = String::from("\u{0}");
+    for (key, k) in &keys {
+        let table = key.rsplit_once('.').map_or("", |(t, _)| t);
+        let top = table.split('.').next().unwrap_or("");
+        if top != section {
+            section = top.to_string();
+            out.push_str(&format!("\n## `[{top}]`\n\n| key | type | default | comment in the shipped configs |\n|---|---|---|---|\n"));
+        }
+        let cell = |s: &str| s.replace('|', "\\|");
+        out.push_str(&format!(
+            "| `{key}` | {} | {} | {} |\n",
+            k.kind,
+            k.default
+                .as_deref()
+                .map_or("*unset*".into(), |d| format!("`{}`", cell(d))),
+            k.comment.as_deref().map(cell).unwrap_or_default(),
+        ));
+    }
+    out
+}
+
+#[cfg(test)]
 mod tests {
     #[test]
     fn cli_reference_page_is_the_help_the_binary_prints() {
@@ -55,6 +255,31 @@ mod tests {
             have == want,
             "{} is out of date: run JETPILOT_BLESS=1 scripts/test.sh -E 'test(/cli_reference/)' and commit it",
             path.display()
+        );
+    }
+
+    #[test]
+    fn config_reference_page_lists_every_key_with_its_default() {
+        let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let path = repo.join("docs/reference/config-keys.md");
+        let want = super::config_markdown(repo);
+        if std::env::var_os("JETPILOT_BLESS").is_some() {
+            std::fs::write(&path, &want).unwrap();
+        }
+        let have = std::fs::read_to_string(&path).unwrap_or_default();
+        assert!(
+            have == want,
+            "{} is out of date: run JETPILOT_BLESS=1 scripts/test.sh -E 'test(/config_reference/)' and commit it",
+            path.display()
+        );
+        // Worked rows: a default, and a key unset by default found in the shipped configs.
+        assert!(
+            want.contains("| `web.heartbeat_ms` | integer | `500` |"),
+            "{want}"
+        );
+        assert!(
+            want.contains("| `web.xy_dir` | string | *unset* |"),
+            "{want}"
         );
     }
 }
