@@ -227,7 +227,12 @@ pub fn config_markdown(repo: &Path) -> String {
             section = top.to_string();
             out.push_str(&format!("\n## `[{top}]`\n\n| key | type | default | comment in the shipped configs |\n|---|---|---|---|\n"));
         }
-        let cell = |s: &str| s.replace('|', "\\|");
+        // Markdown table cells: `|` escaped, `<uuid>` not read as an HTML tag.
+        let cell = |s: &str| {
+            s.replace('|', "\\|")
+                .replace('<', "&lt;")
+                .replace('>', "&gt;")
+        };
         out.push_str(&format!(
             "| `{key}` | {} | {} | {} |\n",
             k.kind,
