@@ -153,6 +153,142 @@ fn config_lines(text: &str) -> Vec<(String, String, Option<String>)> {
     out
 }
 
+/// A struct field as the source declares it: its type's name and its doc comment.
+struct Field {
+    ty: String,
+    doc: String,
+}
+
+/// The fields of every struct in `src/` (`name -> field -> Field`), read from the source
+/// text: `///` lines, then `pub name: Type,` (a `#[serde(rename = "...")]` names the key).
+/// `src/config.rs` is read first, and the first struct of a name wins.
+fn struct_fields(repo: &Path) -> BTreeMap<String, BTreeMap<String, Field>> {
+    let mut files = vec![repo.join("src/config.rs")];
+    let mut stack = vec![repo.join("src")];
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        let mut paths: Vec<_> = entries.filter_map(|e| e.ok()).map(|e| e.path()).collect();
+        paths.sort();
+        for p in paths {
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|e| e == "rs") && !files.contains(&p) {
+                files.push(p);
+            }
+        }
+    }
+    let mut structs: BTreeMap<String, BTreeMap<String, Field>> = BTreeMap::new();
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap_or_default();
+        let mut current: Option<(String, String, BTreeMap<String, Field>)> = None;
+        let (mut doc, mut rename) = (Vec::<String>::new(), None::<String>);
+        for line in text.lines() {
+            let t = line.trim();
+            if current.is_none() {
+                let head = t
+                    .trim_start_matches("pub ")
+                    .trim_start_matches("pub(crate) ");
+                if let Some(rest) = head.strip_prefix("struct ")
+                    && rest.ends_with('{')
+                {
+                    let name: String = rest
+                        .chars()
+                        .take_while(|c| c.is_alphanumeric() || *c == '_')
+                        .collect();
+                    let indent = line.len() - line.trim_start().len();
+                    current = Some((name, " ".repeat(indent) + "}", BTreeMap::new()));
+                    doc.clear();
+                    rename = None;
+                }
+                continue;
+            }
+            let Some((_, close, fields)) = current.as_mut() else {
+                continue;
+            };
+            if line == close.as_str() {
+                let (name, _, fields) = current.take().unwrap_or_default();
+                structs.entry(name).or_insert(fields);
+                continue;
+            }
+            if let Some(d) = t.strip_prefix("///") {
+                doc.push(d.trim().to_string());
+            } else if t.starts_with("#[") {
+                if let Some(r) = t
+                    .split("rename = \"")
+                    .nth(1)
+                    .and_then(|r| r.split('"').next())
+                {
+                    rename = Some(r.to_string());
+                }
+            } else if let Some((field, ty)) = t
+                .strip_prefix("pub ")
+                .or_else(|| t.strip_prefix("pub(crate) "))
+                .and_then(|f| f.split_once(": "))
+            {
+                let key = rename
+                    .take()
+                    .unwrap_or_else(|| field.trim_start_matches("r#").to_string());
+                let ty = ty.trim_end_matches(',');
+                let ty = ty
+                    .strip_prefix("Option<")
+                    .and_then(|t| t.strip_suffix('>'))
+                    .unwrap_or(ty);
+                let ty = ty.rsplit("::").next().unwrap_or(ty).to_string();
+                fields.insert(
+                    key,
+                    Field {
+                        ty,
+                        doc: doc.join(" "),
+                    },
+                );
+                doc.clear();
+            } else {
+                doc.clear();
+                rename = None;
+            }
+        }
+    }
+    structs
+}
+
+/// The doc comment of dotted `key`, found by walking from `Config` through the field types.
+fn key_doc(structs: &BTreeMap<String, BTreeMap<String, Field>>, key: &str) -> Option<String> {
+    let mut ty = "Config".to_string();
+    let mut doc = None;
+    for part in key.split('.') {
+        let field = structs.get(&ty)?.get(part)?;
+        doc = Some(field.doc.clone());
+        ty = field.ty.clone();
+    }
+    doc.filter(|d| !d.is_empty()).map(|d| plain(&d))
+}
+
+/// Doc-comment markdown made plain for a table cell: `[text](target)` and `[`path`]` become
+/// their text.
+fn plain(doc: &str) -> String {
+    let mut out = String::new();
+    let mut rest = doc;
+    while let Some(open) = rest.find('[') {
+        out.push_str(&rest[..open]);
+        let after = &rest[open + 1..];
+        let Some(close) = after.find(']') else {
+            out.push_str(&rest[open..]);
+            return out;
+        };
+        out.push_str(&after[..close]);
+        rest = &after[close + 1..];
+        if let Some(target) = rest.strip_prefix('(')
+            && let Some(end) = target.find(')')
+        {
+            rest = &target[end + 1..];
+        }
+    }
+    out.push_str(rest);
+    out
+}
+
 /// Whether `key = value` alone parses as a config (the key exists, the value has its type).
 fn parses(key: &str, value: &str) -> bool {
     let (table, k) = key.rsplit_once('.').unwrap_or(("", key));
@@ -208,13 +344,16 @@ pub fn config_markdown(repo: &Path) -> String {
             }
         }
     }
+    let structs = struct_fields(repo);
     let mut out = String::from(
         "# Config keys\n\n\
          Generated from the code: each key's type and default come from `Config::default()`\n\
          (`[gamepad]`: from its default, used when the table is present); keys unset by\n\
          default (*unset*) are the ones the shipped configs in `config/` set or show commented\n\
-         out, each checked to parse. The meaning is the shipped configs' comment on the key\n\
-         (every key is explained in the config files and in `src/` beside its field). A test\n\
+         out, each checked to parse. The meaning is the doc comment of the key's field in\n\
+         `src/` (found by walking the field types from `Config`), else the shipped configs'\n\
+         comment on the key; units are in it where the key's name does not carry them\n\
+         (`_ms`, `_s`, `_m`, `_hz`, `_deg`, ...). A test\n\
          keeps it in step: after changing a key, run\n\
          `JETPILOT_BLESS=1 scripts/test.sh -E 'test(/config_reference/)'`. How files are read\n\
          and checked: [Configs](configs.md).\n",
@@ -225,7 +364,9 @@ pub fn config_markdown(repo: &Path) -> String {
         let top = table.split('.').next().unwrap_or("");
         if top != section {
             section = top.to_string();
-            out.push_str(&format!("\n## `[{top}]`\n\n| key | type | default | comment in the shipped configs |\n|---|---|---|---|\n"));
+            out.push_str(&format!(
+                "\n## `[{top}]`\n\n| key | type | default | meaning |\n|---|---|---|---|\n"
+            ));
         }
         // Markdown table cells: `|` escaped, `<uuid>` not read as an HTML tag.
         let cell = |s: &str| {
@@ -239,7 +380,11 @@ pub fn config_markdown(repo: &Path) -> String {
             k.default
                 .as_deref()
                 .map_or("*unset*".into(), |d| format!("`{}`", cell(d))),
-            k.comment.as_deref().map(cell).unwrap_or_default(),
+            key_doc(&structs, key)
+                .or_else(|| k.comment.clone())
+                .as_deref()
+                .map(cell)
+                .unwrap_or_default(),
         ));
     }
     out
