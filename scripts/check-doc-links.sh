@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Checks the relative links of README.md and docs/**/*.md: every target must exist in the
 # repository (and not be a git-ignored path such as .cache/, which is never committed),
-# every image must be a file, every #anchor must name a heading of its page (GitHub's and
+# every image must be a file, a page of the book (docs/) may only link inside docs/ (mdBook
+# copies nothing else into the rendered book), every #anchor must name a heading of its page (GitHub's and
 # mdBook's ids: lower case, punctuation dropped, spaces to hyphens, -1, -2 for repeats), and
 # docs/SUMMARY.md must list every page of the book. Links inside code blocks and code
 # spans are not links. External links (http:, https:, mailto:, ...) are not fetched.
@@ -117,6 +118,10 @@ for page in pages():
             dest = os.path.normpath(os.path.join(os.path.dirname(page), path))
             if dest.startswith(".."):
                 errors.append(f"{where} leaves the repository")
+                continue
+            if page.startswith("docs" + os.sep) and not dest.startswith("docs" + os.sep):
+                # mdBook copies only docs/ into the book: such a link is broken there.
+                errors.append(f"{where} leaves the book (docs/): move the file into docs/ or name it as code")
                 continue
             if not os.path.exists(dest):
                 errors.append(f"{where} {dest} does not exist")
