@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use embedded_hal::delay::DelayNs;
 
+#[cfg(any(feature = "linux-hal", feature = "rpi"))]
 use super::motors::MotorError;
 
 /// A `DelayNs` on `std::thread::sleep`, for the few waits of chip initialisation.
