@@ -90,7 +90,9 @@ pub struct Config {
 pub struct OledConfig {
     /// Off by default; an enabled display that does not answer is a warning, not an error.
     pub enabled: bool,
+    /// The I2C bus number: `/dev/i2c-N` (1 on the Jetson Nano's 40-pin header).
     pub i2c_bus: u8,
+    /// The display's 7-bit I2C address (0x3C; 60 in TOML's decimal).
     pub address: u8,
 }
 
@@ -163,6 +165,8 @@ pub enum PixelFormat {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
+    /// Where frames come from: `folder` (images replayed in name order), `v4l2` (a USB camera),
+    /// `pipe` (raw frames from `command`'s standard output: CSI cameras through GStreamer).
     pub source: CameraSource,
     /// Folder of frames (`folder` source).
     pub path: PathBuf,
@@ -173,8 +177,9 @@ pub struct CameraConfig {
     pub repeat: bool,
     /// `v4l2`: the device node.
     pub device: PathBuf,
-    /// `v4l2`, `pipe`: frame size asked for (v4l2) or delivered (pipe).
+    /// `v4l2`, `pipe`: frame width asked for (v4l2) or delivered (pipe), pixels.
     pub width: u32,
+    /// `v4l2`, `pipe`: frame height asked for (v4l2) or delivered (pipe), pixels.
     pub height: u32,
     /// `v4l2`: the format to ask for; `pipe`: the raw format the command writes
     /// (`rgb3`, `bgr3`, `yuyv` or `grey`; not `mjpeg` or `auto`).
@@ -203,11 +208,17 @@ impl Default for CameraConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
+    /// The ONNX policy file (relative paths from the working directory).
     pub path: PathBuf,
+    /// Side of the square input, pixels, when the model carries no contract.
     pub input_size: u32,
+    /// `rgb` or `bgr`, when the model carries no contract.
     pub channel_order: ChannelOrder,
+    /// Per-channel mean subtracted after scaling to 0..=1 (ImageNet's by default).
     pub mean: [f32; 3],
+    /// Per-channel standard deviation divided by after the mean (ImageNet's by default).
     pub std: [f32; 3],
+    /// What the two outputs are: `xy` (JetBot's target point) or `speed_steering`.
     pub output: OutputKind,
 }
 
@@ -334,7 +345,10 @@ pub enum MotorBackend {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrimConfig {
+    /// Scale on this motor's command, as JetBot's `Motor.alpha` (1.0: none); match a slower
+    /// motor to a faster one.
     pub alpha: f32,
+    /// Offset added after scaling, as JetBot's `Motor.beta` (0.0: none).
     pub beta: f32,
     /// Unset: the layout's default (true on the NVIDIA JetBot's Adafruit HAT).
     pub invert: Option<bool>,

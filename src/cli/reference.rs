@@ -1,9 +1,11 @@
 //! The book's generated reference pages, so they cannot drift from the code (tests compare
 //! them; `JETPILOT_BLESS=1` rewrites them):
 //! - `docs/reference/cli-help.md`: every command's `--help`, from the clap definitions;
-//! - `docs/reference/config-keys.md`: every config key with its type and default, from
-//!   `Config::default()`, and the keys that are unset by default from the shipped configs,
-//!   each checked to parse; the meaning is the shipped configs' comment on the key.
+//! - `docs/reference/config-keys.md`: every config key with its type, default and unit:
+//!   the defaults from `Config::default()`, the keys that are unset by default from the
+//!   shipped configs (each checked to parse) and from the config structs' fields in `src/`
+//!   (each checked to be a key serde knows); the meaning is the field's doc comment, else the
+//!   shipped configs' comment on the key.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -49,7 +51,7 @@ fn section(out: &mut String, cmd: &mut clap::Command, path: &str) {
 
 /// One key of the config page.
 struct Key {
-    kind: &'static str,
+    kind: String,
     default: Option<String>,
     comment: Option<String>,
 }
@@ -97,7 +99,7 @@ fn flatten(prefix: &str, table: &toml::Table, keys: &mut BTreeMap<String, Key>) 
                 keys.insert(
                     key,
                     Key {
-                        kind: kind(v),
+                        kind: kind(v).into(),
                         default: Some(shown(v)),
                         comment: None,
                     },
@@ -289,6 +291,97 @@ fn plain(doc: &str) -> String {
     out
 }
 
+/// Every leaf key reachable from `Config` through the struct fields read from `src/`: a field
+/// whose type is one of those structs is a table, any other field a key. Returns `(dotted
+/// key, the field's Rust type)`.
+fn source_keys(structs: &BTreeMap<String, BTreeMap<String, Field>>) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    let mut stack = vec![(String::new(), "Config".to_string(), 0)];
+    while let Some((prefix, ty, depth)) = stack.pop() {
+        let Some(fields) = structs.get(&ty) else {
+            continue;
+        };
+        for (name, field) in fields {
+            let key = format!("{prefix}{name}");
+            if structs.contains_key(&field.ty) && depth < 6 {
+                stack.push((format!("{key}."), field.ty.clone(), depth + 1));
+            } else {
+                out.push((key, field.ty.clone()));
+            }
+        }
+    }
+    out
+}
+
+/// Whether serde knows dotted `key` (a value of the wrong type is fine: only an unknown
+/// field or table is refused, since every config struct denies unknown fields).
+fn known(key: &str) -> bool {
+    let (table, k) = key.rsplit_once('.').unwrap_or(("", key));
+    let text = if table.is_empty() {
+        format!("{k} = {{}}\n")
+    } else {
+        format!("[{table}]\n{k} = {{}}\n")
+    };
+    match toml::from_str::<Config>(&text) {
+        Ok(_) => true,
+        Err(e) => !e.to_string().contains("unknown field"),
+    }
+}
+
+/// The TOML type a Rust field type takes: a primitive's, an array's, else the type's own name
+/// (an enum written as a string; its values are in the meaning).
+fn rust_kind(ty: &str) -> String {
+    match ty {
+        "String" | "PathBuf" => "string".into(),
+        "f32" | "f64" => "float".into(),
+        "bool" => "bool".into(),
+        "u8" | "u16" | "u32" | "u64" | "usize" | "i8" | "i16" | "i32" | "i64" => "integer".into(),
+        t if t.starts_with("Vec<") || t.starts_with('[') => "array".into(),
+        t => format!("`{t}`"),
+    }
+}
+
+/// The unit of `key`: from its name's suffix (`_ms`, `_s`, `_m`, `_deg`, ...), else from a
+/// unit its meaning names ("metres", "(m/s)", ...); empty where neither says one.
+fn unit(key: &str, meaning: &str) -> &'static str {
+    const SUFFIXES: [(&str, &str); 12] = [
+        ("_px_per_m", "px/m"),
+        ("_ms", "ms"),
+        ("_s", "s"),
+        ("_seconds", "s"),
+        ("_m", "m"),
+        ("_mps", "m/s"),
+        ("_deg", "degrees"),
+        ("_hz", "Hz"),
+        ("_mib", "MiB"),
+        ("_mb", "MB"),
+        ("_px", "px"),
+        ("_frames", "frames"),
+    ];
+    let name = key.rsplit('.').next().unwrap_or(key);
+    if let Some((_, u)) = SUFFIXES.iter().find(|(s, _)| name.ends_with(s)) {
+        return u;
+    }
+    const WORDS: [(&str, &str); 11] = [
+        ("(m/s)", "m/s"),
+        ("metres", "m"),
+        ("(m)", "m"),
+        ("degrees", "degrees"),
+        ("milliseconds", "ms"),
+        ("(s)", "s"),
+        ("seconds", "s"),
+        ("in pixels", "px"),
+        (", pixels", "px"),
+        ("frames per second", "Hz"),
+        ("fraction", "fraction"),
+    ];
+    let meaning = meaning.to_lowercase();
+    WORDS
+        .iter()
+        .find(|(w, _)| meaning.contains(w))
+        .map_or("", |(_, u)| u)
+}
+
 /// Whether `key = value` alone parses as a config (the key exists, the value has its type).
 fn parses(key: &str, value: &str) -> bool {
     let (table, k) = key.rsplit_once('.').unwrap_or(("", key));
@@ -336,7 +429,7 @@ pub fn config_markdown(repo: &Path) -> String {
                 keys.insert(
                     key,
                     Key {
-                        kind: v.as_ref().map_or("?", kind),
+                        kind: v.as_ref().map_or("?", kind).into(),
                         default: None,
                         comment,
                     },
@@ -345,15 +438,38 @@ pub fn config_markdown(repo: &Path) -> String {
         }
     }
     let structs = struct_fields(repo);
+    for (key, ty) in source_keys(&structs) {
+        if !keys.contains_key(&key) && known(&key) {
+            keys.insert(
+                key,
+                Key {
+                    kind: rust_kind(&ty),
+                    default: None,
+                    comment: None,
+                },
+            );
+        }
+    }
+    // A shipped config's inline table (`pwm = { chip = 0, channel = 0 }`) is listed by its keys.
+    let tables: Vec<String> = keys
+        .keys()
+        .filter(|k| keys.keys().any(|o| o.starts_with(&format!("{k}."))))
+        .cloned()
+        .collect();
+    for t in tables {
+        keys.remove(&t);
+    }
     let mut out = String::from(
         "# Config keys\n\n\
          Generated from the code: each key's type and default come from `Config::default()`\n\
          (`[gamepad]`: from its default, used when the table is present); keys unset by\n\
          default (*unset*) are the ones the shipped configs in `config/` set or show commented\n\
-         out, each checked to parse. The meaning is the doc comment of the key's field in\n\
-         `src/` (found by walking the field types from `Config`), else the shipped configs'\n\
-         comment on the key; units are in it where the key's name does not carry them\n\
-         (`_ms`, `_s`, `_m`, `_hz`, `_deg`, ...). A test\n\
+         out (each checked to parse) and every other field of the config structs in `src/`\n\
+         (found by walking the field types from `Config`, each checked to be a key the parser\n\
+         knows; a type in backticks is the Rust type, its values in the meaning). The meaning\n\
+         is the doc comment of the key's field, else the shipped configs' comment on the key.\n\
+         The unit comes from the key's name (`_ms`, `_s`, `_m`, `_hz`, `_deg`, ...) or from a\n\
+         unit the meaning names; an empty unit is a count, a ratio or a name. A test\n\
          keeps it in step: after changing a key, run\n\
          `JETPILOT_BLESS=1 scripts/test.sh -E 'test(/config_reference/)'`. How files are read\n\
          and checked: [Configs](configs.md).\n",
@@ -365,7 +481,7 @@ pub fn config_markdown(repo: &Path) -> String {
         if top != section {
             section = top.to_string();
             out.push_str(&format!(
-                "\n## `[{top}]`\n\n| key | type | default | meaning |\n|---|---|---|---|\n"
+                "\n## `[{top}]`\n\n| key | type | default | unit | meaning |\n|---|---|---|---|---|\n"
             ));
         }
         // Markdown table cells: `|` escaped, `<uuid>` not read as an HTML tag.
@@ -374,17 +490,17 @@ pub fn config_markdown(repo: &Path) -> String {
                 .replace('<', "&lt;")
                 .replace('>', "&gt;")
         };
+        let meaning = key_doc(&structs, key)
+            .or_else(|| k.comment.clone())
+            .unwrap_or_default();
         out.push_str(&format!(
-            "| `{key}` | {} | {} | {} |\n",
+            "| `{key}` | {} | {} | {} | {} |\n",
             k.kind,
             k.default
                 .as_deref()
                 .map_or("*unset*".into(), |d| format!("`{}`", cell(d))),
-            key_doc(&structs, key)
-                .or_else(|| k.comment.clone())
-                .as_deref()
-                .map(cell)
-                .unwrap_or_default(),
+            unit(key, &meaning),
+            cell(&meaning),
         ));
     }
     out
@@ -424,12 +540,46 @@ mod tests {
         );
         // Worked rows: a default, and a key unset by default found in the shipped configs.
         assert!(
-            want.contains("| `web.heartbeat_ms` | integer | `500` |"),
+            want.contains("| `web.heartbeat_ms` | integer | `500` | ms |"),
             "{want}"
         );
         assert!(
             want.contains("| `web.xy_dir` | string | *unset* |"),
             "{want}"
         );
+        // Keys unset by default that no shipped config mentions, found in the source.
+        for key in [
+            "web.token_path",
+            "gamepad.axes.left_x",
+            "motors.gpio.left.in1_pwm.chip",
+        ] {
+            assert!(
+                want.contains(&format!("| `{key}` |")),
+                "{key} missing:\n{want}"
+            );
+        }
+    }
+
+    #[test]
+    fn every_key_serde_knows_is_found_and_nothing_else() {
+        // A key of the walk that is not a config key is refused; a real one is known.
+        assert!(super::known("web.token_path"));
+        assert!(super::known("sim.robot.motor.time_constant_s"));
+        assert!(!super::known("web.no_such_key"));
+        assert!(!super::known("no_such_table.key"));
+        assert_eq!(super::unit("safety.watchdog_ms", ""), "ms");
+        assert_eq!(super::unit("sim.camera.height_m", ""), "m");
+        assert_eq!(
+            super::unit("sim.camera.forward", "Distance ahead, metres."),
+            "m"
+        );
+        assert_eq!(super::unit("model.std", "Per-channel std."), "");
+        assert_eq!(super::unit("sim.mat_px_per_m", ""), "px/m");
+        assert_eq!(
+            super::unit("camera.fps", "Frames per second delivered."),
+            "Hz"
+        );
+        assert_eq!(super::rust_kind("Option<u8>"), "`Option<u8>`");
+        assert_eq!(super::rust_kind("PathBuf"), "string");
     }
 }

@@ -159,9 +159,13 @@ pub enum DriveMode {
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AxisOverrides {
+    /// The left stick's horizontal axis, an evdev name such as `ABS_X`.
     pub left_x: Option<String>,
+    /// The left stick's vertical axis (`ABS_Y` on most pads).
     pub left_y: Option<String>,
+    /// The right stick's horizontal axis (`ABS_RX` on Xbox pads, `ABS_Z` on some others).
     pub right_x: Option<String>,
+    /// The right stick's vertical axis (`ABS_RY` on Xbox pads, `ABS_RZ` on some others).
     pub right_y: Option<String>,
 }
 
@@ -170,14 +174,23 @@ pub struct AxisOverrides {
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ButtonOverrides {
+    /// The button to switch between manual and the autopilot (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub toggle_autopilot: Option<String>,
+    /// The button to start or stop recording a tub (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub toggle_recording: Option<String>,
+    /// The button to stop the motors and latch the stop (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub emergency_stop: Option<String>,
+    /// The button to release the latched stop (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub clear_emergency_stop: Option<String>,
+    /// The button to delete the last `erase_count` records of the tub (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub erase_last: Option<String>,
+    /// The button to raise `control.speed_gain` (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub speed_gain_up: Option<String>,
+    /// The button to lower `control.speed_gain` (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub speed_gain_down: Option<String>,
+    /// The button to raise `control.steering_gain` (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub steering_gain_up: Option<String>,
+    /// The button to lower `control.steering_gain` (an evdev name such as `BTN_SOUTH`, or `"none"`).
     pub steering_gain_down: Option<String>,
 }
 
@@ -199,6 +212,7 @@ pub struct GamepadConfig {
     pub steering_scale: f32,
     /// Stick up = forward (Linux reports up as negative).
     pub invert_throttle: bool,
+    /// Flip the steering axis (positive steering turns right, as in the steering law).
     pub invert_steering: bool,
     pub drive_mode: DriveMode,
     /// No event at all for this long while in Manual mode = stale input (0 = off).

@@ -25,7 +25,9 @@ pub struct RewardParams {
     pub d_ideal_m: f32,
     /// Speed that earns the full speed term (m/s).
     pub v_ideal_mps: f32,
+    /// Weight of the distance term, w_d (the paper: 0.5).
     pub w_distance: f32,
+    /// Weight of the speed term, w_s (the paper: 0.5).
     pub w_speed: f32,
     /// Below this, either term zeroes the whole reward.
     pub floor: f32,

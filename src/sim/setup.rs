@@ -89,8 +89,13 @@ pub struct SimConfig {
     /// gradient, glare that moves with the robot) and keep it in place in replayed views
     /// ([`crate::sim::flat_field`]); used only where it explains the recording.
     pub replay_flat_field: bool,
+    /// Frames, inferences and motor commands per simulated second.
     pub control_hz: f32,
+    /// Physics steps per simulated second; each control period takes
+    /// `round(physics_hz / control_hz)` of them (at least one).
     pub physics_hz: f32,
+    /// The seed of everything random in the simulator (layouts, appearance, noise): one
+    /// seed, one run, byte for byte.
     pub seed: u64,
     /// Length of `jetpilot eval`'s test, simulated seconds (the paper: 600).
     pub eval_seconds: f32,

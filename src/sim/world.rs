@@ -141,6 +141,7 @@ struct Layouts {
 pub struct StallRule {
     /// Window length, simulated seconds (0: no stall rule).
     pub seconds: f32,
+    /// Forward progress along the track required in each window, metres.
     pub min_progress_m: f32,
 }
 

@@ -12,7 +12,9 @@ use super::chip::{BridgeChip, StopMode};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PwmChannel {
+    /// The PWM chip: `pwmchipN` under `pwm_root`.
     pub chip: u32,
+    /// The channel on that chip: `pwmN`.
     pub channel: u32,
 }
 
@@ -39,10 +41,15 @@ pub enum PwmBackend {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpioMotorPins {
+    /// L298N, TB6612FNG: the IN1 direction line's offset on `gpiochip`.
     pub in1: Option<u32>,
+    /// L298N, TB6612FNG: the IN2 direction line's offset on `gpiochip`.
     pub in2: Option<u32>,
+    /// L298N, TB6612FNG: the enable (ENA/ENB, PWMA/PWMB) line's PWM channel.
     pub pwm: Option<PwmChannel>,
+    /// DRV8833: the PWM channel on IN1.
     pub in1_pwm: Option<PwmChannel>,
+    /// DRV8833: the PWM channel on IN2.
     pub in2_pwm: Option<PwmChannel>,
 }
 
