@@ -20,6 +20,7 @@ mod replay_check;
 mod run;
 mod samples;
 mod score;
+mod score_explain;
 mod sim;
 mod train;
 #[cfg(feature = "train")]

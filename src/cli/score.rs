@@ -46,6 +46,14 @@ pub struct ScoreArgs {
     /// ONNX Runtime intra-op threads (0: ONNX Runtime decides).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Occlusion maps of the N worst frames (explain.png, explain.csv): a grey square laid
+    /// on each part of the frame in turn shows how far the answer moves, i.e. what the
+    /// policy looks at. Costs (map cells + 1) model runs per frame: 170 at the default.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    explain: usize,
+    /// Side of --explain's grey squares in input pixels (default: a seventh of the input).
+    #[arg(long, value_name = "PX", requires = "explain")]
+    explain_patch: Option<usize>,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -260,6 +268,21 @@ pub fn main(args: ScoreArgs) -> anyhow::Result<ExitCode> {
         png.display(),
         tiles.len()
     );
+    if args.explain > 0 {
+        let mut worst: Vec<&Scored> = scored.iter().collect();
+        worst.sort_by(|a, b| b.error.total_cmp(&a.error));
+        let frames: Vec<super::score_explain::Worst<'_>> = worst
+            .into_iter()
+            .take(args.explain)
+            .map(|s| super::score_explain::Worst {
+                path: &s.frame.path,
+                label: s.label,
+                prediction: s.prediction,
+                error: s.error,
+            })
+            .collect();
+        super::score_explain::write(&mut policy, &contract, &frames, args.explain_patch, &out)?;
+    }
     if skipped > 0 {
         println!("skipped {skipped} unreadable image(s), named in the warnings above");
     }

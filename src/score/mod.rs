@@ -2,8 +2,8 @@
 //! what people labelled, beside what always answering the average label would score.
 //!
 //! This module owns the pure arithmetic; `cli/score.rs` reads the frames and runs the
-//! model, [`sheet`] draws the picture. [`contact`] draws `sim --png --real`'s sheet: sim
-//! views above real frames.
+//! model, [`sheet`] draws the picture, [`explain`] makes the occlusion maps of `--explain`.
+//! [`contact`] draws `sim --png --real`'s sheet: sim views above real frames.
 //!
 //! - `xy` heads (JetBot's target point): the distance between the predicted and the
 //!   labelled point in pixels of JetBot's 224x224 frame, `112 * |p - l|` for labels in
@@ -17,6 +17,7 @@
 
 pub mod agreement;
 pub mod contact;
+pub mod explain;
 pub mod sheet;
 
 use std::fmt;

@@ -32,14 +32,9 @@ pub fn draw(output: OutputKind, tiles: &[Tile<'_>], columns: u32, tile_px: u32) 
     let mut sheet =
         RgbImage::from_pixel(columns * step + GAP, rows * step + GAP, Rgb([24, 24, 24]));
     for (i, t) in tiles.iter().enumerate() {
-        let Some(src) = RgbImage::from_raw(t.width, t.height, t.rgb.to_vec()) else {
+        let Some(tile) = marked(output, t, tile_px) else {
             continue;
         };
-        let mut tile = image::imageops::resize(&src, tile_px, tile_px, FilterType::Triangle);
-        match output {
-            OutputKind::Xy => mark_points(&mut tile, t.label, t.prediction),
-            OutputKind::SpeedSteering => mark_bars(&mut tile, t.label, t.prediction),
-        }
         let (col, row) = (i as u32 % columns, i as u32 / columns);
         image::imageops::replace(
             &mut sheet,
@@ -49,6 +44,18 @@ pub fn draw(output: OutputKind, tiles: &[Tile<'_>], columns: u32, tile_px: u32) 
         );
     }
     sheet
+}
+
+/// One frame scaled to `tile_px` square with its label and prediction drawn on it (`None`
+/// when `rgb` is not `width * height * 3` bytes).
+pub fn marked(output: OutputKind, t: &Tile<'_>, tile_px: u32) -> Option<RgbImage> {
+    let src = RgbImage::from_raw(t.width, t.height, t.rgb.to_vec())?;
+    let mut tile = image::imageops::resize(&src, tile_px, tile_px, FilterType::Triangle);
+    match output {
+        OutputKind::Xy => mark_points(&mut tile, t.label, t.prediction),
+        OutputKind::SpeedSteering => mark_bars(&mut tile, t.label, t.prediction),
+    }
+    Some(tile)
 }
 
 /// -1..1 -> pixel of a `size`-pixel axis.

@@ -11,7 +11,7 @@ use std::process::{Command, Output};
 
 use jetpilot::dataset::{encode_jpeg, jetbot_xy};
 use jetpilot::policy::ModelContract;
-use jetpilot::policy::onnx::{self, Resnet18Weights};
+use jetpilot::policy::onnx::{self, Dim, GraphBuilder, Resnet18Weights, attr_int};
 
 fn jetpilot(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_jetpilot"))
@@ -197,4 +197,72 @@ fn a_folder_with_no_readable_frame_is_an_error() {
         stderr.contains("xy_010_020_a.jpg") && stderr.contains("none of the frames could be read"),
         "{stderr}"
     );
+}
+
+/// A 32x32 model blind to the right half of its input: x = the mean of the red plane's
+/// left half over 512 (`Flatten` then `Gemm`), y = 0.
+fn left_eyed_model(dir: &Path) -> PathBuf {
+    let s = 32usize;
+    let mut b = vec![0.0f32; 3 * s * s * 2];
+    for y in 0..s {
+        for x in 0..s / 2 {
+            b[(y * s + x) * 2] = 1.0 / 512.0; // [3072, 2] row-major: plane 0, output 0
+        }
+    }
+    let contract = ModelContract {
+        input_size: s as u32,
+        ..ModelContract::default()
+    };
+    let mut g = GraphBuilder::new("left_eyed");
+    g.input_f32("input", &[1, 3, 32, 32].map(Dim::Fixed));
+    g.initializer_f32("b", &[3 * 32 * 32, 2], &b).unwrap();
+    g.initializer_f32("c", &[2], &[0.0, 0.0]).unwrap();
+    g.node("Flatten", &["input"], &["flat"], vec![attr_int("axis", 1)]);
+    g.node("Gemm", &["flat", "b", "c"], &["output"], vec![]);
+    g.output_f32("output", &[1, 2].map(Dim::Fixed));
+    let model = g.finish("test", "0", &contract.to_metadata()).unwrap();
+    let path = dir.join("left_eyed.onnx");
+    onnx::write_model(&path, &model).unwrap();
+    path
+}
+
+#[test]
+fn explain_maps_show_a_blind_right_half_as_cold() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = left_eyed_model(dir.path());
+    let data = xy_folder(dir.path());
+    let out = dir.path().join("s");
+    let run = score(&model, &data, &out, &["--explain", "2"]);
+    let (stdout, stderr) = text(&run);
+    assert!(run.status.success(), "{stdout}\n{stderr}");
+    // Patches of round(32 / 7) = 5 px every 2 px: starts 0, 2, ..., 26 and 27 (flush).
+    assert!(
+        stdout.contains("explaining the 2 worst frames: 5x5-pixel grey squares every 2 pixels of the 32x32 input, 226 runs of the model per frame"),
+        "{stdout}"
+    );
+    // Every frame is grey 90: (90/255 - 0.485) / 0.229 = -0.57668 in the red plane, the
+    // patch's grey (0.5 - 0.485) / 0.229 = 0.06550. A patch in the left half moves x by
+    // 25 * 0.64218 / 512 = 0.031356, i.e. 3.512 px of the 224 frame.
+    let csv = std::fs::read_to_string(out.join("explain.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{csv}");
+    for r in &rows {
+        let max_shift: f64 = r[3].parse().unwrap();
+        let centroid_x: f64 = r[4].parse().unwrap();
+        assert!((max_shift - 3.512).abs() < 0.01, "{csv}");
+        // All heat lies left of the middle, save what straddling patches carry over it.
+        assert!(centroid_x < 0.35, "{csv}");
+    }
+    let png = image::open(out.join("explain.png")).unwrap().to_rgb8();
+    // Two rows of three 160-pixel tiles with 2-pixel gaps.
+    assert_eq!(png.dimensions(), (3 * 162 + 2, 2 * 162 + 2));
+    // The heat-alone tile of the first row: hot on the left, black on the right.
+    let hot = png.get_pixel(2 + 2 * 162 + 20, 2 + 80).0;
+    let cold = png.get_pixel(2 + 2 * 162 + 140, 2 + 80).0;
+    assert!(hot[0] > 200, "{hot:?}");
+    assert_eq!(cold, [0, 0, 0]);
 }
