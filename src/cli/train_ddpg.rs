@@ -22,8 +22,9 @@ pub struct DdpgArgs {
     /// ddpg_curve.png.
     #[arg(short, long, value_name = "DIR")]
     out: PathBuf,
-    /// The imitation policy to start from (a speed_steering ResNet-18, e.g. from
-    /// `train il`); without it the actor starts random (DDPG from scratch).
+    /// The imitation policy to start from (a speed_steering ResNet-18 or EfficientNet-Lite0,
+    /// e.g. from `train il`); without it the actor starts a random ResNet-18 (DDPG from
+    /// scratch).
     #[arg(long, value_name = "FILE")]
     init: Option<PathBuf>,
     /// Demonstration tubs whose transitions and rewards stay in the replay buffer for good.
@@ -107,7 +108,7 @@ pub struct DdpgArgs {
     /// ONNX Runtime threads for the backbone.
     #[arg(long, default_value_t = 2)]
     threads: usize,
-    /// Train the ResNet-18 backbones too (actor and critics), not only the actor's fc and
+    /// Train the ResNet-18 backbones too (actor and critics; ResNet-18 only), not only the actor's fc and
     /// the critics' layers on frozen features. The replay then holds whole frames; each
     /// update runs several ResNet-18 passes per sample, which wants a GPU (on a 2-core CPU
     /// one update of batch 32 at 96x96 took 3.5 s, `jetpilot train bench`): lower --batch

@@ -234,7 +234,7 @@ pub fn load_onnx(path: &Path, device: &Device) -> Result<(Resnet18, ModelContrac
         other => Err(TrainError::Data {
             path: path.display().to_string(),
             reason: format!(
-                "a {} model; this needs a ResNet-18 (train ddpg supports ResNet-18 only so far)",
+                "a {} model; this needs a ResNet-18 (this burn network is ResNet-18; `read_onnx` reads both)",
                 other.arch().title()
             ),
         }),

@@ -78,7 +78,9 @@ mod wgpu {
     use jetpilot::train::augment::Augment;
     use jetpilot::train::data::{Dataset, LabelMap};
     use jetpilot::train::ddpg::agent::{Agent, AgentConfig};
-    use jetpilot::train::ddpg::features::{FEATURES, Head};
+    use jetpilot::train::ddpg::features::Head;
+    /// ResNet-18's feature width.
+    const FEATURES: usize = 512;
     use jetpilot::train::ddpg::replay::{Replay, Transition};
     use jetpilot::train::device::WgpuAdapter;
     use jetpilot::train::il::{self, IlOptions};
@@ -188,7 +190,8 @@ mod wgpu {
     #[test]
     fn ddpg_updates_on_wgpu_follow_the_flex_ones() {
         let weights = Resnet18Weights::random(2, 4);
-        let head = Head::from_weights(&weights).unwrap();
+        let head =
+            Head::from_weights(&jetpilot::policy::onnx::NetWeights::Resnet18(weights)).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut replay = Replay::new(64);
         for i in 0..64 {

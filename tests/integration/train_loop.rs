@@ -741,3 +741,78 @@ fn ddpg_and_eval_run_on_the_road_made_from_a_recordings_path() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("is not a replay"), "{err}");
 }
+
+/// EfficientNet-Lite0 through DDPG: a Lite0 actor (`model init --arch efficientnet-lite0`)
+/// trains its 1280-wide head on frozen features, the critic reads 1280 features, and the
+/// export is still a Lite0 whose backbone is the start's and which `jetpilot eval` drives.
+/// A backbone that trains is ResNet-18 only, and says so naming the file.
+#[test]
+fn ddpg_trains_an_efficientnet_lite0_head_on_its_frozen_features() {
+    use jetpilot::policy::onnx::{Arch, read_net_weights};
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let tub = demos(dir.path(), &cfg, "1");
+    let init = dir.path().join("lite0.onnx");
+    ok(&jetpilot(
+        &[
+            "model",
+            "init",
+            "--arch",
+            "efficientnet-lite0",
+            "--input-size",
+            "32",
+            "--head",
+            "speed-steering",
+            "--seed",
+            "2",
+            "-o",
+        ],
+        &[&init],
+    ));
+    let out = dir.path().join("ddpg");
+    let text = ok(&ddpg(&cfg, &init, &tub, &out, "2", "24", "2"));
+    assert!(text.contains("demonstration transitions"), "{text}");
+    let (before, _) = read_net_weights(&init).unwrap();
+    let (after, contract) = read_net_weights(&out.join("last.onnx")).unwrap();
+    assert_eq!(after.arch(), Arch::EfficientNetLite0);
+    assert_eq!(contract.input_size, SIZE);
+    assert_eq!(after.tensors()["_fc.weight"].0, vec![2, 1280]);
+    assert_ne!(
+        after.tensors()["_fc.weight"].1,
+        before.tensors()["_fc.weight"].1,
+        "the head did not train"
+    );
+    for frozen in [
+        "_conv_stem.weight",
+        "_blocks.15._project_conv.weight",
+        "_bn1.running_var",
+    ] {
+        assert_eq!(
+            after.tensors()[frozen],
+            before.tensors()[frozen],
+            "{frozen} changed"
+        );
+    }
+    ok(&jetpilot(
+        &["eval", "--seconds", "2", "--config"],
+        &[&cfg, Path::new("--model"), &out.join("best.onnx")],
+    ));
+
+    let refused = jetpilot(
+        &["train", "ddpg", "--train-backbone", "--episodes", "1"],
+        &[
+            Path::new("--sim"),
+            &cfg,
+            Path::new("--init"),
+            &init,
+            Path::new("--out"),
+            &dir.path().join("refused"),
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("lite0.onnx") && stderr.contains("ResNet-18 only"),
+        "{stderr}"
+    );
+}

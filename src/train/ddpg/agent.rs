@@ -23,10 +23,10 @@ use burn::tensor::{Device, Tensor, TensorData};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
-use super::features::{FEATURES, Head};
+use super::features::Head;
 use super::nets::{ActorHead, Critic, forked_to, polyak, read, trainable_trunk};
 use super::replay::Replay;
-use crate::policy::onnx::Resnet18Weights;
+use crate::policy::onnx::{NetWeights, Resnet18Weights};
 use crate::train::TrainError;
 
 /// Learner settings.
@@ -130,14 +130,14 @@ struct BatchTensors {
 }
 
 impl Agent {
-    /// Networks on frozen features (states are the backbone's 512 features), actor from
+    /// Networks on frozen features (states are the backbone's `head.width()` features), actor from
     /// `head`, on `device` (a plain one; see [`crate::train::TrainDevice`]); seeds burn's RNG.
     pub fn new(cfg: AgentConfig, head: &Head, seed: u64, device: &Device) -> Self {
         let init = Self::init_device(seed);
         let actor = ActorHead::from_head(head, &init);
         let n_critics = if cfg.twin { 2 } else { 1 };
         let critics = (0..n_critics)
-            .map(|_| Critic::new(cfg.hidden, None, &init))
+            .map(|_| Critic::new(cfg.hidden, head.width(), None, &init))
             .collect();
         Self::assemble(cfg, actor, critics, device, seed)
     }
@@ -157,6 +157,7 @@ impl Agent {
             .map(|_| {
                 Ok(Critic::new(
                     cfg.hidden,
+                    crate::train::resnet::FEATURES,
                     Some(trainable_trunk(weights, &init)?),
                     &init,
                 ))
@@ -218,17 +219,15 @@ impl Agent {
         self.actor.clone().valid().to_head()
     }
 
-    /// The whole actor as ResNet-18 weights (`base` supplies the frozen backbone).
-    pub fn actor_weights(&self, base: &Resnet18Weights) -> Result<Resnet18Weights, TrainError> {
+    /// The whole actor's weights (`base` supplies the frozen backbone).
+    pub fn actor_weights(&self, base: &NetWeights) -> Result<NetWeights, TrainError> {
         self.actor.clone().valid().to_weights(base)
     }
 
     fn tensors(&self, replay: &Replay, idx: &[usize], device: &Device) -> BatchTensors {
         let n = idx.len();
-        // Frozen features (512) or preprocessed frames (3*S*S), whatever the replay holds.
-        let width = idx
-            .first()
-            .map_or(FEATURES, |&i| replay.get(i).features.len());
+        // Frozen features (F) or preprocessed frames (3*S*S), whatever the replay holds.
+        let width = idx.first().map_or(0, |&i| replay.get(i).features.len());
         let mut f = Vec::with_capacity(n * width);
         let mut next = Vec::with_capacity(n * width);
         let (mut a, mut r, mut d, mut demo) = (
@@ -490,6 +489,9 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
+    /// ResNet-18's feature width.
+    const FEATURES: usize = 512;
+
     fn head() -> Head {
         Head {
             weight: vec![0.0; 2 * FEATURES],
@@ -656,8 +658,10 @@ mod tests {
         }
         let stats = agent.update(&replay, true, &mut rng).unwrap();
         assert!(stats.actor_loss.is_some() && stats.critic_loss.is_finite());
-        let after = agent.actor_weights(&weights).unwrap();
-        let changed = |name: &str| after.tensors[name].1 != weights.tensors[name].1;
+        let after = agent
+            .actor_weights(&NetWeights::Resnet18(weights.clone()))
+            .unwrap();
+        let changed = |name: &str| after.tensors()[name].1 != weights.tensors[name].1;
         assert!(changed("conv1.weight"), "actor trunk did not train");
         assert!(changed("layer4.1.conv2.weight"));
         assert!(changed("fc.weight"));

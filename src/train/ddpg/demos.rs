@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 
 use super::State;
-use super::features::{Backbone, FEATURES};
+use super::features::Backbone;
 use super::replay::{NStep, Step, Transition};
 use crate::dataset::tub::{DriveMode, TubReader, TubRecord};
 use crate::policy::{ModelContract, Preprocessor};
@@ -57,7 +57,7 @@ pub fn load(
             let input = pre.run(w, h, &rgb).map_err(|e| data_err(e.to_string()))?;
             let features = match state {
                 State::Features => {
-                    let mut f = vec![0.0; FEATURES];
+                    let mut f = vec![0.0; backbone.width()];
                     backbone.features(input, &mut f)?;
                     f
                 }

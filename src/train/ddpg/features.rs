@@ -1,11 +1,12 @@
-//! The frozen backbone: owns computing ResNet-18 features once per frame, and the actor
-//! that drives with them.
+//! The frozen backbone: owns computing the pooled features once per frame (ResNet-18's
+//! 512 or EfficientNet-Lite0's 1280), and the actor that drives with them.
 //!
 //! The backbone runs on ONNX Runtime, not burn: a batch-1 ResNet-18 forward pass at 96x96
 //! takes about 21 ms on burn's Flex backend on this 2-core machine, while ONNX Runtime runs
 //! the whole 112x112 network in 3.7 ms (`jetpilot bench`), and DDPG needs one per
-//! environment step. The session's model is the actor's own ResNet-18 with `fc` replaced by the 512x512 identity, so its output *is* the pooled
-//! feature vector, bit for bit what the exported actor computes before its `fc`.
+//! environment step. The session's model is the actor's own network with its output layer
+//! (`fc`, Lite0's `_fc`) replaced by the FxF identity, so its output *is* the pooled
+//! feature vector, bit for bit what the exported actor computes before that layer.
 //!
 //! [`FeatureActor`] = backbone + a linear head `a = W f + b` (the actor's `fc`), as a
 //! [`Policy`], so training-time evaluation drives through the daemon's own per-frame code.
@@ -15,16 +16,14 @@ use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 
 use super::super::TrainError;
-use crate::policy::onnx::{Resnet18Weights, encode_model, resnet18_model};
+use crate::policy::onnx::{NetWeights, encode_model};
 use crate::policy::{ModelContract, Policy, PolicyError, runtime};
 
-/// Width of the feature vector.
-pub const FEATURES: usize = crate::train::resnet::FEATURES;
-
-/// ResNet-18 features on ONNX Runtime.
+/// A network's pooled features on ONNX Runtime.
 pub struct Backbone {
     session: Session,
     shape: [usize; 4],
+    width: usize,
 }
 
 fn ort_err(e: impl std::fmt::Display) -> TrainError {
@@ -32,27 +31,23 @@ fn ort_err(e: impl std::fmt::Display) -> TrainError {
 }
 
 impl Backbone {
-    /// A session for `weights`' convolutional part (`fc` is ignored), `threads` intra-op
-    /// threads that sleep rather than spin when idle (the trainer shares the cores).
+    /// A session for `weights`' convolutional part (the output layer is ignored), `threads`
+    /// intra-op threads that sleep rather than spin when idle (the trainer shares the cores).
     pub fn new(
-        weights: &Resnet18Weights,
+        weights: &NetWeights,
         contract: &ModelContract,
         threads: usize,
     ) -> Result<Self, TrainError> {
-        let mut w = weights.clone();
-        let mut eye = vec![0.0f32; FEATURES * FEATURES];
-        for i in 0..FEATURES {
-            eye[i * FEATURES + i] = 1.0;
+        let width = weights.arch().features();
+        let mut eye = vec![0.0f32; width * width];
+        for i in 0..width {
+            eye[i * width + i] = 1.0;
         }
-        w.tensors.insert(
-            "fc.weight".into(),
-            (vec![FEATURES as i64, FEATURES as i64], eye),
-        );
-        w.tensors.insert(
-            "fc.bias".into(),
-            (vec![FEATURES as i64], vec![0.0; FEATURES]),
-        );
-        let proto = resnet18_model(contract.input_size, &w, contract, env!("CARGO_PKG_VERSION"))?;
+        let proto = weights.with_head(width, eye, vec![0.0; width]).model(
+            contract.input_size,
+            contract,
+            env!("CARGO_PKG_VERSION"),
+        )?;
         let bytes = encode_model(&proto);
         let (_, env) = runtime::environment(None).map_err(ort_err)?;
         let session = Session::builder(env)
@@ -69,10 +64,17 @@ impl Backbone {
         Ok(Self {
             session,
             shape: [1, 3, s, s],
+            width,
         })
     }
 
-    /// Features of one preprocessed input (`[1,3,S,S]`, NCHW) into `out` (512 values).
+    /// How many features: 512 for ResNet-18, 1280 for EfficientNet-Lite0.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Features of one preprocessed input (`[1,3,S,S]`, NCHW) into `out` ([`Self::width`]
+    /// values).
     pub fn features(&mut self, input: &[f32], out: &mut [f32]) -> Result<(), TrainError> {
         let tensor = TensorRef::from_array_view((self.shape, input)).map_err(ort_err)?;
         let outputs = self.session.run(ort::inputs![tensor]).map_err(ort_err)?;
@@ -89,7 +91,7 @@ impl Backbone {
     }
 }
 
-/// A linear head on the features: `a = W f + b`, `W` stored `[2][512]`.
+/// A linear head on the features: `a = W f + b`, `W` stored `[2][F]` (torchvision's layout).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Head {
     pub weight: Vec<f32>,
@@ -97,51 +99,48 @@ pub struct Head {
 }
 
 impl Head {
-    /// The head of `weights` (`fc.weight [2,512]`, `fc.bias [2]`, torchvision's layout).
-    pub fn from_weights(weights: &Resnet18Weights) -> Result<Self, TrainError> {
-        let get = |name: &str, len: usize| -> Result<Vec<f32>, TrainError> {
+    /// The output layer of `weights` (`fc` for ResNet-18, `_fc` for Lite0: `[2,F]`, `[2]`).
+    pub fn from_weights(weights: &NetWeights) -> Result<Self, TrainError> {
+        let prefix = weights.arch().head();
+        let get = |name: String, len: usize| -> Result<Vec<f32>, TrainError> {
             let (_, v) = weights
-                .tensors
-                .get(name)
+                .tensors()
+                .get(&name)
                 .ok_or_else(|| TrainError::MissingTensor {
-                    name: name.into(),
+                    name: name.clone(),
                     expected: format!("{len} values"),
                 })?;
             if v.len() != len {
                 return Err(TrainError::TensorShape {
-                    name: name.into(),
+                    name,
                     expected: format!("{len} values"),
                     found: format!("{} values", v.len()),
                 });
             }
             Ok(v.clone())
         };
-        let weight = get("fc.weight", 2 * FEATURES)?;
-        let b = get("fc.bias", 2)?;
+        let weight = get(format!("{prefix}.weight"), 2 * weights.arch().features())?;
+        let b = get(format!("{prefix}.bias"), 2)?;
         Ok(Self {
             weight,
             bias: [b[0], b[1]],
         })
     }
 
-    pub fn apply(&self, f: &[f32]) -> [f32; 2] {
-        let dot = |row: &[f32]| row.iter().zip(f).map(|(w, x)| w * x).sum::<f32>();
-        [
-            dot(&self.weight[..FEATURES]) + self.bias[0],
-            dot(&self.weight[FEATURES..]) + self.bias[1],
-        ]
+    /// How many features it reads.
+    pub fn width(&self) -> usize {
+        self.weight.len() / 2
     }
 
-    /// `weights` with this head as `fc`.
-    pub fn into_weights(&self, weights: &Resnet18Weights) -> Resnet18Weights {
-        let mut w = weights.clone();
-        w.tensors.insert(
-            "fc.weight".into(),
-            (vec![2, FEATURES as i64], self.weight.clone()),
-        );
-        w.tensors
-            .insert("fc.bias".into(), (vec![2], self.bias.to_vec()));
-        w
+    pub fn apply(&self, f: &[f32]) -> [f32; 2] {
+        let dot = |row: &[f32]| row.iter().zip(f).map(|(w, x)| w * x).sum::<f32>();
+        let (w0, w1) = self.weight.split_at(self.width());
+        [dot(w0) + self.bias[0], dot(w1) + self.bias[1]]
+    }
+
+    /// `weights` with this head as their output layer.
+    pub fn into_weights(&self, weights: &NetWeights) -> NetWeights {
+        weights.with_head(2, self.weight.clone(), self.bias.to_vec())
     }
 }
 
@@ -159,7 +158,7 @@ impl<'a> FeatureActor<'a> {
             backbone,
             head,
             contract,
-            features: vec![0.0; FEATURES],
+            features: vec![0.0; head.width()],
         }
     }
 }

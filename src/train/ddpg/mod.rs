@@ -2,7 +2,8 @@
 //! of `jetpilot train ddpg`.
 //!
 //! ```text
-//! actor  <- the imitation policy (--init), or a random ResNet-18 (from scratch)
+//! actor  <- the imitation policy (--init: ResNet-18 or EfficientNet-Lite0), or a random
+//!           ResNet-18 (from scratch)
 //! replay <- the demonstrations with their rewards, kept for good (DDPGfD)
 //! critic warm-up: `warmup_updates` critic-only updates on the demonstrations
 //! evaluate (the 600 s protocol) -> best.onnx
@@ -15,8 +16,9 @@
 //! ```
 //!
 //! The backbone is frozen by default (the CPU choice): features are computed once per frame
-//! on ONNX Runtime, the replay holds them, and only the actor's `fc` and the critics train.
-//! With `train_backbone` the replay holds the preprocessed frames instead, the actor and
+//! on ONNX Runtime, the replay holds them, and only the actor's `fc` and the critics train
+//! (512 features for ResNet-18, 1280 for EfficientNet-Lite0, whose head is `_fc`).
+//! With `train_backbone` (ResNet-18 only) the replay holds the preprocessed frames instead, the actor and
 //! each critic train a ResNet-18 of their own (initialised from the actor), and the ONNX
 //! Runtime session that acts is rebuilt from the actor after each round of updates (the
 //! actor does not change during an episode). Files in the output folder:
@@ -33,21 +35,20 @@ pub mod replay;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use burn::tensor::Device;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use self::agent::{Agent, AgentConfig};
 use self::eval::{EvalOutcome, evaluate};
-use self::features::{Backbone, FEATURES, FeatureActor, Head};
+use self::features::{Backbone, FeatureActor, Head};
 use self::noise::{Noise, NoiseKind};
 use self::replay::{NStep, Replay, Step};
 use super::curve::{CsvLog, Series, plot_png, read_csv};
 use super::data::LabelMap;
-use super::export::write_weights;
-use super::{TrainDevice, TrainError, load_onnx};
+use super::export::write_net_weights;
+use super::{TrainDevice, TrainError, read_onnx};
 use crate::config::Config;
-use crate::policy::onnx::Resnet18Weights;
+use crate::policy::onnx::{Arch, NetWeights};
 use crate::policy::{ModelContract, OutputKind, Preprocessor};
 use crate::sim::env::Env;
 
@@ -195,10 +196,10 @@ pub fn png_path(out: &Path) -> PathBuf {
 }
 
 /// The starting weights and contract.
-fn initial(opts: &DdpgOptions) -> Result<(Resnet18Weights, ModelContract), TrainError> {
+fn initial(opts: &DdpgOptions) -> Result<(NetWeights, ModelContract), TrainError> {
     match &opts.init {
         Some(path) => {
-            let (model, contract) = load_onnx(path, &Device::flex())?;
+            let (weights, contract) = read_onnx(path)?;
             if contract.output != OutputKind::SpeedSteering {
                 return Err(TrainError::Data {
                     path: path.display().to_string(),
@@ -208,13 +209,22 @@ fn initial(opts: &DdpgOptions) -> Result<(Resnet18Weights, ModelContract), Train
                     ),
                 });
             }
-            Ok((model.to_weights()?, contract))
+            if opts.train_backbone && weights.arch() != Arch::Resnet18 {
+                return Err(TrainError::Data {
+                    path: path.display().to_string(),
+                    reason: format!(
+                        "a {} model; a backbone that trains (--train-backbone) is ResNet-18 only so far: leave the option out to train the head on frozen features",
+                        weights.arch().title()
+                    ),
+                });
+            }
+            Ok((weights, contract))
         }
         None => {
             let mut contract = opts.cfg.model.fallback_contract();
             contract.input_size = opts.input_size;
             contract.output = OutputKind::SpeedSteering;
-            Ok((Resnet18Weights::random(2, opts.seed), contract))
+            Ok((NetWeights::random(Arch::Resnet18, 2, opts.seed), contract))
         }
     }
 }
@@ -281,7 +291,7 @@ impl Failures {
 /// What the replay buffer holds as a state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum State {
-    /// The frozen backbone's 512 features.
+    /// The frozen backbone's features (512 for ResNet-18, 1280 for Lite0).
     Features,
     /// The preprocessed frame (`3*S*S` values), for a backbone that trains.
     Frames,
@@ -312,12 +322,12 @@ struct Evaluations<'a, F> {
 struct Acting {
     backbone: Backbone,
     head: Head,
-    weights: Resnet18Weights,
+    weights: NetWeights,
 }
 
 impl Acting {
     fn new(
-        weights: Resnet18Weights,
+        weights: NetWeights,
         contract: &ModelContract,
         threads: usize,
     ) -> Result<Self, TrainError> {
@@ -364,7 +374,7 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
             }
         };
         if better {
-            write_weights(&actor.weights, self.contract, &best_path(&self.opts.out))?;
+            write_net_weights(&actor.weights, self.contract, &best_path(&self.opts.out))?;
             self.best = Some(point);
         }
         self.points.push(point);
@@ -424,7 +434,15 @@ pub fn train(
 
     let mut agent = match state {
         State::Features => Agent::new(opts.agent.clone(), &actor.head, opts.seed, &device),
-        State::Frames => Agent::trainable(opts.agent.clone(), &actor.weights, opts.seed, &device)?,
+        State::Frames => match &actor.weights {
+            NetWeights::Resnet18(w) => Agent::trainable(opts.agent.clone(), w, opts.seed, &device)?,
+            other => {
+                return Err(TrainError::Backend(format!(
+                    "a backbone that trains is ResNet-18 only so far, not {}",
+                    other.arch().title()
+                )));
+            }
+        },
     };
     // Critic warm-up on the demonstrations: the actor stays the imitation policy.
     if !replay.is_empty() {
@@ -461,7 +479,7 @@ pub fn train(
     let mut train_seconds = 0.0f64;
     let mut episode = 0usize;
     let mut done_early = evals.run(0, 0, &mut actor)?;
-    let mut features = vec![0.0f32; FEATURES];
+    let mut features = vec![0.0f32; actor.backbone.width()];
     let mut failures = Failures::new();
     let track_length = env.world().track.length();
     let track_closed = env.world().track.is_closed();
@@ -588,7 +606,7 @@ pub fn train(
         }
     }
     // The last policy, and a final evaluation when the last episodes were not evaluated.
-    write_weights(&actor.weights, &contract, &opts.out.join("last.onnx"))?;
+    write_net_weights(&actor.weights, &contract, &opts.out.join("last.onnx"))?;
     if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
         evals.run(episode, env_steps, &mut actor)?;
     }

@@ -1,15 +1,17 @@
 //! The networks DDPG trains, as burn modules:
 //!
 //! ```text
-//! encoder:     x [B,D] -> f [B,512]      frozen backbone: x *is* f (D = 512), computed once
-//!                                        per frame on ONNX Runtime (the CPU default);
+//! encoder:     x [B,D] -> f [B,F]        frozen backbone: x *is* f (D = F: ResNet-18's 512,
+//!                                        EfficientNet-Lite0's 1280), computed once per frame
+//!                                        on ONNX Runtime (the CPU default);
 //!                                        trainable: x = the preprocessed frame (D = 3*S*S),
 //!                                        reshaped to [B,3,S,S] -> the network's own ResNet-18
+//!                                        (ResNet-18 only)
 //! actor:       f -> fc -> a [B,2]                                  (the exported actor's fc)
 //! critic:      concat(f, a [B,2]) -> 256 -> relu -> 256 -> relu -> 1   Q [B,1]
 //! ```
 //!
-//! The critic is the paper's: ResNet-18 features with the action concatenated into the input
+//! The critic is the paper's: the backbone's features with the action concatenated into the input
 //! of its final fully connected layers. A trainable trunk keeps its batch-norm layers in
 //! inference mode (the imitation run's running statistics; a replay batch mixes states from
 //! many episodes, and the target networks must see the same normalisation), while its
@@ -22,8 +24,8 @@ use burn::nn::{Linear, LinearConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::features::{FEATURES, Head};
-use crate::policy::onnx::Resnet18Weights;
+use super::features::Head;
+use crate::policy::onnx::{NetWeights, Resnet18Weights};
 use crate::train::TrainError;
 use crate::train::resnet::Resnet18;
 
@@ -35,7 +37,7 @@ pub fn trainable_trunk(weights: &Resnet18Weights, device: &Device) -> Result<Res
         .set_require_grad(true))
 }
 
-/// `x [B,D]` to features `[B,512]`: the identity without a trunk, else the trunk's pooled
+/// `x [B,D]` to features `[B,F]`: the identity without a trunk, else the trunk's pooled
 /// features of `x` seen as `[B,3,S,S]`.
 fn encode(trunk: &Option<Resnet18>, x: Tensor<2>) -> Tensor<2> {
     match trunk {
@@ -48,7 +50,7 @@ fn encode(trunk: &Option<Resnet18>, x: Tensor<2>) -> Tensor<2> {
     }
 }
 
-/// The actor: an optional trainable trunk, then `fc`: 512 -> 2.
+/// The actor: an optional trainable trunk, then `fc`: F -> 2.
 #[derive(Module, Debug)]
 pub struct ActorHead {
     /// `Some` when the backbone trains (its own `fc` is not used).
@@ -59,9 +61,12 @@ pub struct ActorHead {
 impl ActorHead {
     /// A head on frozen features.
     pub fn from_head(head: &Head, device: &Device) -> Self {
-        // burn stores Linear weights [d_in, d_out]; Head holds torchvision's [2][512].
-        let w = Tensor::<2>::from_data(TensorData::new(head.weight.clone(), [2, FEATURES]), device)
-            .transpose();
+        // burn stores Linear weights [d_in, d_out]; Head holds torchvision's [2][F].
+        let w = Tensor::<2>::from_data(
+            TensorData::new(head.weight.clone(), [2, head.width()]),
+            device,
+        )
+        .transpose();
         let b = Tensor::<1>::from_data(TensorData::new(head.bias.to_vec(), [2]), device);
         Self {
             trunk: None,
@@ -74,7 +79,7 @@ impl ActorHead {
 
     /// The whole network of `weights`, trunk trainable.
     pub fn trainable(weights: &Resnet18Weights, device: &Device) -> Result<Self, TrainError> {
-        let head = Head::from_weights(weights)?;
+        let head = Head::from_weights(&NetWeights::Resnet18(weights.clone()))?;
         Ok(Self {
             trunk: Some(trainable_trunk(weights, device)?),
             ..Self::from_head(&head, device)
@@ -87,7 +92,7 @@ impl ActorHead {
 
     /// Back to a plain [`Head`] for acting and export.
     pub fn to_head(&self) -> Result<Head, TrainError> {
-        let w = read(self.fc.weight.val().transpose())?; // [2,512] row-major
+        let w = read(self.fc.weight.val().transpose())?; // [2,F] row-major
         let b = match &self.fc.bias {
             Some(b) => read(b.val())?,
             None => vec![0.0; 2],
@@ -98,12 +103,12 @@ impl ActorHead {
         })
     }
 
-    /// The whole actor as ResNet-18 weights: the trunk's own when it trains, else `base`'s
-    /// (the frozen backbone), with this `fc`.
-    pub fn to_weights(&self, base: &Resnet18Weights) -> Result<Resnet18Weights, TrainError> {
+    /// The whole actor's weights: the trunk's own when it trains, else `base`'s (the frozen
+    /// backbone), with this `fc`.
+    pub fn to_weights(&self, base: &NetWeights) -> Result<NetWeights, TrainError> {
         let head = self.to_head()?;
         Ok(match &self.trunk {
-            Some(t) => head.into_weights(&t.to_weights()?),
+            Some(t) => head.into_weights(&NetWeights::Resnet18(t.to_weights()?)),
             None => head.into_weights(base),
         })
     }
@@ -119,12 +124,12 @@ pub struct Critic {
 }
 
 impl Critic {
-    /// A critic with `hidden` units per layer on `trunk`'s features (or frozen features);
-    /// burn's default initialisation from the seeded device RNG.
-    pub fn new(hidden: usize, trunk: Option<Resnet18>, device: &Device) -> Self {
+    /// A critic with `hidden` units per layer on `features` of `trunk` (or frozen
+    /// features); burn's default initialisation from the seeded device RNG.
+    pub fn new(hidden: usize, features: usize, trunk: Option<Resnet18>, device: &Device) -> Self {
         Self {
             trunk,
-            l1: LinearConfig::new(FEATURES + 2, hidden).init(device),
+            l1: LinearConfig::new(features + 2, hidden).init(device),
             l2: LinearConfig::new(hidden, hidden).init(device),
             out: LinearConfig::new(hidden, 1).init(device),
         }
@@ -210,6 +215,9 @@ pub fn forked_to<M: Module>(m: M, device: &Device) -> M {
 mod tests {
     use super::*;
 
+    /// ResNet-18's feature width.
+    const FEATURES: usize = 512;
+
     #[test]
     fn head_round_trips_and_computes_w_f_plus_b() {
         let device = Device::flex();
@@ -237,8 +245,8 @@ mod tests {
     #[test]
     fn polyak_moves_a_tau_share_of_the_way() {
         let device = Device::flex();
-        let a = Critic::new(4, None, &device);
-        let b = Critic::new(4, None, &device);
+        let a = Critic::new(4, FEATURES, None, &device);
+        let b = Critic::new(4, FEATURES, None, &device);
         let m = polyak(a.clone(), &b, 0.25);
         for (x, y, z) in [
             (&a.l1.weight, &b.l1.weight, &m.l1.weight),
@@ -293,11 +301,13 @@ mod tests {
         assert!(trunk.conv1.weight.grad(&grads).is_some());
         assert!(trunk.layer4[1].bn2.gamma.grad(&grads).is_some());
         // Export: the trunk's weights with this fc.
-        let back = actor.to_weights(&Resnet18Weights::random(2, 8)).unwrap();
+        let back = actor
+            .to_weights(&NetWeights::Resnet18(Resnet18Weights::random(2, 8)))
+            .unwrap();
         assert_eq!(
-            back.tensors["conv1.weight"].1,
+            back.tensors()["conv1.weight"].1,
             weights.tensors["conv1.weight"].1
         );
-        assert_eq!(back.tensors["fc.bias"].1, weights.tensors["fc.bias"].1);
+        assert_eq!(back.tensors()["fc.bias"].1, weights.tensors["fc.bias"].1);
     }
 }
