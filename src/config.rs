@@ -672,6 +672,12 @@ impl Config {
         v.range_u("web.heartbeat_ms", w.heartbeat_ms, 100, 2000)?;
         v.range("web.throttle_scale", w.throttle_scale, 0.0, 1.0)?;
         v.range("web.steering_scale", w.steering_scale, 0.0, 1.0)?;
+        v.range_u("web.max_connections", w.max_connections, 1, 1024)?;
+        v.range_u("web.request_timeout_ms", w.request_timeout_ms, 100, 600_000)?;
+        v.range_u("web.stall_timeout_ms", w.stall_timeout_ms, 100, 600_000)?;
+        // Above the socket's 2 s ping, so an open page is never closed for idling.
+        v.range_u("web.idle_timeout_ms", w.idle_timeout_ms, 5_000, 3_600_000)?;
+        v.range_u("web.max_message_bytes", w.max_message_bytes, 1024, 16 << 20)?;
         Ok(())
     }
 }

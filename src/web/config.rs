@@ -39,6 +39,20 @@ pub struct WebConfig {
     /// Click-to-label, collision avoidance: the folder holding `free/` and `blocked/`.
     /// Default: `dataset` in the state directory.
     pub collision_dir: Option<PathBuf>,
+    /// Most connections served at once (pages, video streams, sockets); more wait until
+    /// one closes.
+    pub max_connections: u64,
+    /// A connection that gets no response within this many ms of opening (a request that
+    /// never ends) is closed.
+    pub request_timeout_ms: u64,
+    /// A client that takes nothing sent to it for this many ms (a video client gone without
+    /// a goodbye) is closed.
+    pub stall_timeout_ms: u64,
+    /// A connection the daemon has sent nothing to for this many ms is closed (the page's
+    /// socket is pinged every 2 s, so an open page never is).
+    pub idle_timeout_ms: u64,
+    /// Largest message the page's WebSocket accepts, in bytes; a larger one closes it.
+    pub max_message_bytes: u64,
 }
 
 impl Default for WebConfig {
@@ -56,11 +70,26 @@ impl Default for WebConfig {
             steering_scale: 0.3,
             xy_dir: None,
             collision_dir: None,
+            max_connections: 32,
+            request_timeout_ms: 10_000,
+            stall_timeout_ms: 10_000,
+            idle_timeout_ms: 60_000,
+            max_message_bytes: 65_536,
         }
     }
 }
 
 impl WebConfig {
+    /// The per-connection time limits.
+    pub fn limits(&self) -> super::guard::Limits {
+        use std::time::Duration;
+        super::guard::Limits {
+            request: Duration::from_millis(self.request_timeout_ms),
+            stall: Duration::from_millis(self.stall_timeout_ms),
+            idle: Duration::from_millis(self.idle_timeout_ms),
+        }
+    }
+
     /// The bind address, or what is wrong with it.
     pub fn addr(&self) -> Result<SocketAddr, String> {
         self.bind.parse::<SocketAddr>().map_err(|e| {

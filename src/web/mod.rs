@@ -14,6 +14,7 @@
 
 pub mod auth;
 pub mod config;
+pub mod guard;
 pub mod label;
 pub mod metrics;
 pub mod overlay;
@@ -93,6 +94,8 @@ impl WebServer {
             .await
             .map_err(|e| bind_err(e.to_string()))?;
         let addr = listener.local_addr().map_err(|e| bind_err(e.to_string()))?;
+        let listener =
+            guard::GuardedListener::new(listener, cfg.max_connections as usize, cfg.limits());
         let cancel = CancellationToken::new();
         let video_tx = Arc::new(watch::Sender::new(None));
         if cfg.xy_dir.is_none() || cfg.collision_dir.is_none() {
@@ -121,6 +124,7 @@ impl WebServer {
             cancel.clone(),
         ));
         let state = server::AppState {
+            max_message_bytes: cfg.max_message_bytes as usize,
             token: token.as_deref().map(Arc::from),
             status: links.status,
             video: video_tx,

@@ -56,6 +56,8 @@ pub struct AppState {
     pub page: Arc<PageInfo>,
     /// Click-to-label's folders and the frames sent last.
     pub labels: Arc<super::label::Labeller>,
+    /// `web.max_message_bytes`: the largest WebSocket message (and frame) taken.
+    pub max_message_bytes: usize,
 }
 
 /// Static facts for the page.
@@ -357,7 +359,11 @@ impl ClientMsg {
 
 async fn ws(State(s): State<AppState>, upgrade: WebSocketUpgrade) -> Response {
     let id = s.next_client.fetch_add(1, Ordering::Relaxed) + 1;
-    upgrade.on_upgrade(move |socket| client(socket, s, id))
+    let max = s.max_message_bytes;
+    upgrade
+        .max_message_size(max)
+        .max_frame_size(max)
+        .on_upgrade(move |socket| client(socket, s, id))
 }
 
 /// Tells the daemon a page has gone, whatever way its task ends.
@@ -386,6 +392,10 @@ impl Drop for Goodbye {
 
 /// Sending to a page that does not read for this long closes its socket.
 const SEND_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// A ping this often keeps a quiet page's socket from `web.idle_timeout_ms`
+/// ([`super::guard`]), and finds a page that is gone.
+const PING_EVERY: Duration = Duration::from_secs(2);
 
 async fn send(socket: &mut WebSocket, text: String) -> bool {
     matches!(
@@ -419,8 +429,20 @@ async fn client(mut socket: WebSocket, s: AppState, id: ClientId) {
     {
         return;
     }
+    let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + PING_EVERY, PING_EVERY);
+    ping.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
+            _ = ping.tick() => {
+                let sent = tokio::time::timeout(
+                    SEND_TIMEOUT,
+                    socket.send(Message::Ping(Default::default())),
+                )
+                .await;
+                if !matches!(sent, Ok(Ok(()))) {
+                    break;
+                }
+            }
             changed = status.changed() => {
                 if changed.is_err() {
                     break;

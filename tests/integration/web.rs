@@ -1,7 +1,8 @@
 //! The web page against the running daemon on replayed frames with virtual motors: the
 //! token on every route (WebSocket upgrade included), the dead-man (a page that falls
 //! silent, a page that closes), sliders reaching the steering law, and clients that never
-//! read costing the control loop nothing.
+//! read costing the control loop nothing, and the connection limits (slow requests, stalled
+//! video clients, garbage, oversized messages).
 
 use crate::common;
 
@@ -632,6 +633,104 @@ async fn clients_that_never_read_cost_the_control_loop_nothing() {
     assert!(gap < WATCHDOG, "a {gap:?} gap between motor writes");
     drop(stuck);
     drop(deaf);
+    drop(ws);
+    rig.finish().await;
+}
+
+/// Reads until the server closes the connection (EOF or reset); the time it took, or `None`
+/// if it was still open after `secs`.
+async fn closed_within(s: &mut TcpStream, secs: f32) -> Option<Duration> {
+    let t0 = tokio::time::Instant::now();
+    let deadline = t0 + Duration::from_secs_f32(secs);
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        match tokio::time::timeout_at(deadline, s.read(&mut buf)).await {
+            Err(_) => return None,
+            Ok(Ok(0)) | Ok(Err(_)) => return Some(t0.elapsed()),
+            Ok(Ok(_)) => {}
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_stalled_and_oversized_clients_are_closed_and_the_page_still_answers() {
+    let mut rig = Rig::start(
+        WebConfig {
+            max_connections: 3,
+            request_timeout_ms: 400,
+            stall_timeout_ms: 500,
+            max_message_bytes: 1024,
+            video_fps: 30.0,
+            jpeg_quality: 95,
+            ..open_cfg()
+        },
+        true,
+    )
+    .await;
+    // Slowloris: three requests that never end take every connection...
+    let mut slow = Vec::new();
+    for _ in 0..3 {
+        let mut s = TcpStream::connect(rig.addr).await.unwrap();
+        s.write_all(b"GET / HTTP/1.1\r\nHost: 1").await.unwrap();
+        slow.push(s);
+    }
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    // ... so a real request waits for a slot, which the request limit frees.
+    let t0 = tokio::time::Instant::now();
+    let (code, _) = http(rig.addr, &get("/api/status", "")).await;
+    let waited = t0.elapsed();
+    assert_eq!(code, 200);
+    assert!(
+        waited >= Duration::from_millis(250) && waited < Duration::from_secs(3),
+        "answered after {waited:?}"
+    );
+    for s in &mut slow {
+        let closed = closed_within(s, 2.0).await;
+        assert!(closed.is_some(), "a slow request was kept open");
+    }
+
+    // Garbage instead of HTTP: closed, and the server goes on.
+    let mut junk = TcpStream::connect(rig.addr).await.unwrap();
+    junk.write_all(&[0xff; 4096]).await.unwrap();
+    assert!(closed_within(&mut junk, 2.0).await.is_some());
+
+    // A video client that never reads (a tiny receive window, as a phone that left the
+    // Wi-Fi): its sends stall and it is closed, not left holding the encoder.
+    let sock = tokio::net::TcpSocket::new_v4().unwrap();
+    sock.set_recv_buffer_size(2048).unwrap();
+    let mut gone = sock.connect(rig.addr).await.unwrap();
+    gone.write_all(get("/video", "").as_bytes()).await.unwrap();
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let closed = closed_within(&mut gone, 3.0).await;
+    assert!(closed.is_some(), "a stalled video client was kept open");
+
+    // A WebSocket message over web.max_message_bytes closes that socket.
+    let mut big = rig.ws(None).await.unwrap();
+    big.send(Message::Text("x".repeat(2000).into()))
+        .await
+        .unwrap();
+    let ended = tokio::time::timeout(Duration::from_secs(2), async {
+        loop {
+            match big.next().await {
+                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
+                Some(Ok(_)) => {}
+            }
+        }
+    })
+    .await;
+    assert!(ended.is_ok(), "an oversized message was taken");
+
+    // After all that: a page connects and hears its hello, and the control loop never
+    // missed its watchdog.
+    let mut ws = rig.ws(None).await.unwrap();
+    let hello = tokio::time::timeout(Duration::from_secs(2), ws.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert!(hello.to_text().unwrap().contains("hello"), "{hello:?}");
+    let s = rig.wait_status(2.0, |_| true).await;
+    assert_eq!(s.watchdog_stops, 0);
     drop(ws);
     rig.finish().await;
 }
