@@ -55,7 +55,14 @@ pub struct TeleopParts {
 /// Makes the recorder on demand; the error names the tub.
 pub type OpenRecorder = Box<dyn FnMut() -> Result<Recorder, String> + Send>;
 
+/// A page's drive messages write the motors at most this often: a page that floods them
+/// (a bug, a stuck key) must not flood the I2C bus. The 50 ms control tick writes the
+/// latest sticks in between.
+pub const REMOTE_WRITE_EVERY: Duration = Duration::from_millis(20);
+
 pub struct Teleop {
+    /// When a page's message last wrote the motors.
+    last_remote_write: Option<Duration>,
     pad: GamepadState,
     /// When the pad last did something (a button press or a stick past the dead zone).
     pad_active_at: Option<Duration>,
@@ -76,6 +83,7 @@ impl Teleop {
     /// loop reads them).
     pub fn new(parts: TeleopParts, gains_tx: watch::Sender<SteeringGains>) -> Self {
         Self {
+            last_remote_write: None,
             remote: parts.remote,
             pad: parts.pad,
             pad_active_at: None,
@@ -180,13 +188,28 @@ impl Teleop {
         // messages must not keep a silent holder's sticks on the motors.
         self.check_remote(now);
         let outcome = self.remote.as_mut()?.on_message(msg, now);
-        let changed = matches!(outcome, Outcome::Accepted(_) | Outcome::Lost { .. });
+        let due = self
+            .last_remote_write
+            .is_none_or(|t| now.saturating_sub(t) >= REMOTE_WRITE_EVERY);
+        // What writes now: a mode change always (compared below), the holder leaving
+        // always, new sticks or a repeated stop at most every REMOTE_WRITE_EVERY.
+        // Heartbeats, gains and record change nothing on the wheels: the control tick
+        // keeps the motors fed.
+        let changed = match outcome {
+            Outcome::Lost { .. } => true,
+            Outcome::Accepted(RemoteRequest::Drive { .. } | RemoteRequest::EmergencyStop) => due,
+            Outcome::Accepted(_) | Outcome::Refused { .. } | Outcome::Ignored => false,
+        };
         self.remote_outcome(outcome, now);
         if !changed && self.modes.mode() == was {
             self.after(now);
-            return None; // a refused or ignored message writes nothing
+            return None; // a refused, ignored or too frequent message writes nothing now
         }
-        self.output_after(was, now)
+        let drive = self.output_after(was, now);
+        if drive.is_some() {
+            self.last_remote_write = Some(now);
+        }
+        drive
     }
 
     /// The control tick without an autopilot command: the web page's dead-man check, then

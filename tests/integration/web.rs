@@ -734,3 +734,187 @@ async fn slow_stalled_and_oversized_clients_are_closed_and_the_page_still_answer
     drop(ws);
     rig.finish().await;
 }
+
+/// This process's resident memory, kB (`/proc/self/status`).
+fn rss_kb() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// Issue 51's load, bounded: 20 video clients reading, 5 sockets flooding messages, 50
+/// requests that never end and garbage every 100 ms, all on loopback. Meanwhile the
+/// autopilot's motor writes keep their cadence, and the page holding the controls that
+/// falls silent is still stopped by the dead-man in time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn under_load_the_autopilot_keeps_its_cadence_and_a_silent_holder_is_still_stopped() {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+    let mut rig = Rig::start(
+        WebConfig {
+            max_connections: 128,
+            video_fps: 30.0,
+            ..open_cfg()
+        },
+        true,
+    )
+    .await;
+    let addr = rig.addr;
+    // This page holds the controls before the load starts (the flooders' messages are then
+    // refused) and keeps them with a heartbeat between the load's steps.
+    let mut ws = rig.ws(None).await.unwrap();
+    say(&mut ws, r#"{"type":"mode","mode":"auto"}"#).await;
+    let done = Arc::new(AtomicBool::new(false));
+    let video_bytes = Arc::new(AtomicU64::new(0));
+    let flood_sent = Arc::new(AtomicU64::new(0));
+    let mut load = Vec::new();
+    for _ in 0..20 {
+        say(&mut ws, r#"{"type":"heartbeat"}"#).await;
+        let (done, bytes) = (done.clone(), video_bytes.clone());
+        load.push(tokio::spawn(async move {
+            let mut s = TcpStream::connect(addr).await.unwrap();
+            s.write_all(get("/video", "").as_bytes()).await.unwrap();
+            let mut buf = vec![0u8; 1 << 16];
+            while !done.load(Ordering::Relaxed) {
+                match tokio::time::timeout(Duration::from_millis(200), s.read(&mut buf)).await {
+                    Ok(Ok(0)) | Ok(Err(_)) => break,
+                    Ok(Ok(n)) => {
+                        bytes.fetch_add(n as u64, Ordering::Relaxed);
+                    }
+                    Err(_) => {}
+                }
+            }
+        }));
+    }
+    for k in 0..5 {
+        say(&mut ws, r#"{"type":"heartbeat"}"#).await;
+        let (done, sent) = (done.clone(), flood_sent.clone());
+        let ws = rig.ws(None).await.unwrap();
+        load.push(tokio::spawn(async move {
+            let (mut tx, mut rx) = ws.split();
+            let drain = tokio::spawn(async move { while let Some(Ok(_)) = rx.next().await {} });
+            let msgs = [
+                r#"{"type":"heartbeat"}"#,
+                r#"{"type":"bogus"}"#,
+                "not json at all",
+                r#"{"type":"gains","speed_gain":9}"#,
+            ];
+            let mut i = k;
+            while !done.load(Ordering::Relaxed) {
+                if tx
+                    .send(Message::Text(msgs[i % msgs.len()].into()))
+                    .await
+                    .is_err()
+                {
+                    break;
+                }
+                sent.fetch_add(1, Ordering::Relaxed);
+                i += 1;
+                if i % 64 == 0 {
+                    tokio::task::yield_now().await;
+                }
+            }
+            drain.abort();
+        }));
+    }
+    let mut stalled = Vec::new();
+    for k in 0..50 {
+        if k % 10 == 0 {
+            say(&mut ws, r#"{"type":"heartbeat"}"#).await;
+        }
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        s.write_all(b"GET /api/status HTTP/1.1\r\nHo")
+            .await
+            .unwrap();
+        stalled.push(s);
+    }
+    {
+        let done = done.clone();
+        load.push(tokio::spawn(async move {
+            while !done.load(Ordering::Relaxed) {
+                if let Ok(mut s) = TcpStream::connect(addr).await {
+                    let _ = s.write_all(&[0x16, 0x03, 0x01, 0xff, 0x00, 0x13]).await;
+                }
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }));
+    }
+    let rss_loaded = rss_kb();
+
+    // The autopilot under that load, its page sending heartbeats.
+    say(&mut ws, r#"{"type":"heartbeat"}"#).await;
+    assert_eq!(
+        rig.wait_status(2.0, |s| s.mode == "auto").await.mode,
+        "auto"
+    );
+    let start = rig.clock.now();
+    for _ in 0..30 {
+        say(&mut ws, r#"{"type":"heartbeat"}"#).await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let end = rig.clock.now();
+    let writes: Vec<Duration> = rig
+        .events()
+        .iter()
+        .filter(|(at, e)| *at > start && *at < end && matches!(e, MotorEvent::Drive(_)))
+        .map(|(at, _)| *at)
+        .collect();
+    let span = (end - start).as_secs_f32();
+    assert!(
+        writes.len() as f32 >= span * 20.0 * 0.6,
+        "{} motor writes in {span:.1} s under load",
+        writes.len()
+    );
+    let gap = writes.windows(2).map(|w| w[1] - w[0]).max().unwrap();
+    eprintln!(
+        "under load: {} motor writes in {span:.1} s, largest gap {gap:?}",
+        writes.len()
+    );
+    assert!(
+        gap < WATCHDOG,
+        "a {gap:?} gap between motor writes under load"
+    );
+
+    // The page takes the wheels, then falls silent with its socket open.
+    say(&mut ws, r#"{"type":"mode","mode":"manual"}"#).await;
+    let last = drive_for(&mut ws, &rig.clock, 1.0, 1.0).await;
+    tokio::time::sleep(Duration::from_millis(1200)).await;
+    let (stop, moved) = stop_after(&rig.events(), last);
+    let after = stop.saturating_sub(last);
+    eprintln!("under load: stop written {after:?} after the page's last message");
+    assert!(
+        after <= HEARTBEAT + WATCHDOG,
+        "stopped {after:?} after the last message"
+    );
+    assert!(!moved, "the motors moved after the dead-man stop");
+
+    done.store(true, Ordering::Relaxed);
+    for t in load {
+        let _ = tokio::time::timeout(Duration::from_secs(3), t).await;
+    }
+    drop(stalled);
+    let rss_end = rss_kb();
+    eprintln!(
+        "video {} kB read, {} flood messages sent, RSS {rss_loaded} kB loaded -> {rss_end} kB",
+        video_bytes.load(Ordering::Relaxed) / 1024,
+        flood_sent.load(Ordering::Relaxed)
+    );
+    assert!(
+        video_bytes.load(Ordering::Relaxed) > 0,
+        "no video reached the clients"
+    );
+    assert!(flood_sent.load(Ordering::Relaxed) > 1000);
+    // Bounded: the load's connections hold no queues that grow.
+    assert!(
+        rss_end < rss_loaded + 64 * 1024,
+        "RSS grew from {rss_loaded} to {rss_end} kB"
+    );
+    let s = rig.wait_status(2.0, |_| true).await;
+    assert_eq!(s.watchdog_stops, 0);
+    drop(ws);
+    rig.finish().await;
+}
