@@ -3,12 +3,20 @@
 //! `explain.png` (frame, frame under heat, heat) and `explain.csv`, with a line per frame.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::Context;
 use jetpilot::policy::{ModelContract, Policy, Preprocessor};
 use jetpilot::score::explain::{self, OcclusionMap, Patches};
 use jetpilot::score::sheet::Tile;
+
+/// A frame as decoded, and its map.
+struct Mapped {
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+    map: OcclusionMap,
+}
 
 /// One frame to explain.
 pub struct Worst<'a> {
@@ -41,7 +49,7 @@ pub fn write(
     );
     let fill = explain::grey(contract);
     let mut pre = Preprocessor::new(contract);
-    let mut maps: Vec<(PathBuf, (u32, u32, Vec<u8>), OcclusionMap)> = Vec::new();
+    let mut maps: Vec<Mapped> = Vec::new();
     let mut csv = String::from(
         "rank,file,error,max_shift,centroid_x,centroid_y,top_third_share,prediction_0,prediction_1\n",
     );
@@ -85,21 +93,26 @@ pub fn write(
             f.prediction[0],
             f.prediction[1]
         );
-        maps.push((f.path.to_path_buf(), (w, h, rgb), map));
+        maps.push(Mapped {
+            width: w,
+            height: h,
+            rgb,
+            map,
+        });
     }
     let rows: Vec<(Tile<'_>, &OcclusionMap)> = maps
         .iter()
         .zip(frames)
-        .map(|((_, (w, h, rgb), map), f)| {
+        .map(|(m, f)| {
             (
                 Tile {
-                    rgb,
-                    width: *w,
-                    height: *h,
+                    rgb: &m.rgb,
+                    width: m.width,
+                    height: m.height,
                     label: f.label,
                     prediction: f.prediction,
                 },
-                map,
+                &m.map,
             )
         })
         .collect();
