@@ -175,7 +175,7 @@ fn setup(
         ..OdometryParams::default()
     };
     if args.no_chassis_mask {
-        params.chassis.find = false;
+        params.chassis.find = Some(false);
         params.chassis.below_row = None;
     }
     if let Vehicle::Car(_) = vehicle {
@@ -322,7 +322,7 @@ fn check_against_truth(
     wheels_only.fusion.min_texture = f32::INFINITY;
     wheels_only.calibrate = false;
     wheels_only.flat_field = false;
-    wheels_only.chassis.find = false;
+    wheels_only.chassis.find = Some(false);
     let base = odometry::estimate(
         tub,
         &sim.camera,

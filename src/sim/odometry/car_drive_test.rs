@@ -121,8 +121,22 @@ fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
         ReadOptions::default(),
     )
     .expect("an estimate");
-    // The chassis: 10 rows of 160, grown by a row.
+    // The chassis: 10 rows of 160, grown by a row (9.2 % of the frame).
     assert_eq!(est.masked_pixels, Some(11 * 160));
+    // Over 5 % allowed: taken for a drive the variance cannot tell, dropped with a warning.
+    let records: Vec<&TubRecord> = tub.records().collect();
+    let strict = ChassisConfig {
+        max_fraction: 0.05,
+        ..ChassisConfig::default()
+    };
+    let mut warnings = Vec::new();
+    let none = chassis_mask(&tub, &records, &camera, &vehicle, &strict, &mut warnings);
+    assert!(none.is_none() && warnings.len() == 1, "{warnings:?}");
+    assert!(warnings[0].contains("9 % of the frame"), "{warnings:?}");
+    // A differential drive finds none unless asked.
+    let wheels = Vehicle::Wheels(RobotParams::default());
+    let cfg = ChassisConfig::default();
+    assert!(chassis_mask(&tub, &records, &camera, &wheels, &cfg, &mut warnings).is_none());
     let truth: HashMap<u64, Pose2> = truth.into_iter().collect();
     let d = check::drift(&est.poses, &truth);
     let mut prior_only = params;

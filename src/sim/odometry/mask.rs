@@ -14,12 +14,17 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChassisConfig {
-    /// Find it from the recording ([`from_variance`]).
-    pub find: bool,
+    /// Find it from the recording ([`from_variance`]). Unset: for a car (a DonkeyCar's
+    /// camera sees its bumper), not for a differential drive (JetBot's does not see itself,
+    /// and on a short, slow drive over a plain mat most of its floor hardly changes).
+    pub find: Option<bool>,
     /// With `find`: a pixel whose grey level varies less than this over the frames
     /// (standard deviation, 0..255) and that joins the bottom edge through such pixels is
     /// the chassis.
     pub max_std: f32,
+    /// A found mask larger than this share of the frame is not a chassis (a drive too
+    /// short or too plain for the variance to tell): it is dropped, with a warning.
+    pub max_fraction: f32,
     /// Mask every row from this one down as well (0..height; unset: none).
     pub below_row: Option<u32>,
 }
@@ -27,8 +32,9 @@ pub struct ChassisConfig {
 impl Default for ChassisConfig {
     fn default() -> Self {
         Self {
-            find: true,
+            find: None,
             max_std: 12.0,
+            max_fraction: 0.25,
             below_row: None,
         }
     }
@@ -72,6 +78,11 @@ impl PixelMask {
     /// How many pixels are masked.
     pub fn count(&self) -> usize {
         self.masked.iter().filter(|m| **m).count()
+    }
+
+    /// The masked share of the frame, 0..1.
+    pub fn fraction(&self) -> f32 {
+        self.count() as f32 / self.masked.len().max(1) as f32
     }
 
     /// The union of two masks of the same size (`self` if the sizes differ).
@@ -239,6 +250,7 @@ mod tests {
         // columns 2-4 on rows 4-6 (9): 45. The sky (rows 0-1) is still but not joined to
         // the bottom: not masked.
         assert_eq!(m.count(), 45);
+        assert!((m.fraction() - 0.375).abs() < 1e-6);
         assert!(m.at(3, 5) && m.at(2, 4) && m.at(0, 7) && !m.at(0, 6));
         assert!(!m.at(5, 0) && !m.at(6, 5));
         assert!(m.at(12, 0), "outside the frame");

@@ -378,7 +378,7 @@ pub fn estimate(
         Vehicle::Car(car) => car.validate()?,
     }
     camera.validate()?;
-    let warnings: Vec<String> = tub.warnings().to_vec();
+    let mut warnings: Vec<String> = tub.warnings().to_vec();
     let records: Vec<&TubRecord> = tub
         .records()
         .filter(|r| !tub.deleted_indexes().contains(&r.index))
@@ -389,7 +389,14 @@ pub fn estimate(
             reason: "the tub has no records".into(),
         });
     };
-    let mask = chassis_mask(tub, &records, camera, &params.chassis);
+    let mask = chassis_mask(
+        tub,
+        &records,
+        camera,
+        &vehicle,
+        &params.chassis,
+        &mut warnings,
+    );
     let setup = Setup {
         camera,
         vehicle,
@@ -429,17 +436,20 @@ impl Setup<'_> {
 }
 
 /// The chassis mask of `config` for these records: found from the frames' per-pixel
-/// variance ([`mask::from_variance`]) and/or set by row; `None` when neither is asked for
-/// or no frame could be read.
+/// variance ([`mask::from_variance`]; by default for a car only) and/or set by row;
+/// `None` when neither is asked for or no frame could be read. A found mask over
+/// `config.max_fraction` of the frame is dropped, and a warning says so.
 pub fn chassis_mask(
     tub: &TubReader,
     records: &[&TubRecord],
     camera: &CameraModel,
+    vehicle: &Vehicle,
     config: &ChassisConfig,
+    warnings: &mut Vec<String>,
 ) -> Option<PixelMask> {
     let (w, h) = (camera.width, camera.height);
     let by_row = config.below_row.map(|r| PixelMask::below_row(w, h, r));
-    if !config.find {
+    if !config.find.unwrap_or(matches!(vehicle, Vehicle::Car(_))) {
         return by_row;
     }
     let mut var = mask::Variance::new(w, h);
@@ -452,6 +462,14 @@ pub fn chassis_mask(
         return by_row;
     }
     let found = mask::from_variance(&var.std(), w, h, config.max_std);
+    if found.fraction() > config.max_fraction {
+        warnings.push(format!(
+            "chassis mask: {:.0} % of the frame hardly changes over the drive, more than a chassis ([sim.chassis] max_fraction {:.0} %); not used",
+            found.fraction() * 100.0,
+            config.max_fraction * 100.0
+        ));
+        return by_row;
+    }
     Some(match by_row {
         Some(r) => found.or(&r),
         None => found,
