@@ -159,8 +159,9 @@ pub const CAR_RANGE: (f32, f32) = (0.25, 4.0);
 /// forward_p`, weighted by vision's yaw information, over the frames whose yaw vision
 /// measures to [`CAR`]'s 5 mrad while the prior moves at least 1 cm. Straight frames fix
 /// the offset, turning ones the scale. With fewer than [`MIN_FRAMES`] turning frames
-/// (prior yaw at least 0.02 rad) the turn stays 1 and the offset alone is fitted; with
-/// fewer than [`MIN_FRAMES`] frames in all, neither.
+/// (prior yaw at least 0.02 rad) the curvature per unit angle stays as configured (the
+/// turn scale is the speed scale: the yaw follows the corrected distance) and the offset
+/// alone is fitted; with fewer than [`MIN_FRAMES`] frames in all, neither.
 pub fn fit_car(samples: &[Sample], overconfidence: f64) -> Scales {
     let t = &CAR;
     let base = fit_with(samples, overconfidence, t);
@@ -188,12 +189,14 @@ pub fn fit_car(samples: &[Sample], overconfidence: f64) -> Scales {
         .iter()
         .filter(|r| r.0.abs() >= f64::from(t.min_yaw_rad))
         .count();
+    // The curvature kept: the yaw scales with the corrected distance.
+    let kept = f64::from(base.speed);
     let (turn, offset) = if rows.len() < MIN_FRAMES {
-        (1.0, 0.0)
+        (kept, 0.0)
     } else if turning < MIN_FRAMES {
-        // The offset alone: yaw_v - yaw_p = offset * forward_p.
-        let (o, _) = weighted_scale(rows.iter().map(|&(a, b, y, w)| (b, y - a, w)));
-        (1.0, o.unwrap_or(0.0))
+        // The offset alone: yaw_v - kept * yaw_p = offset * forward_p.
+        let (o, _) = weighted_scale(rows.iter().map(|&(a, b, y, w)| (b, y - kept * a, w)));
+        (kept, o.unwrap_or(0.0))
     } else {
         let (mut saa, mut sab, mut sbb, mut say, mut sby) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &(a, b, y, w) in &rows {
@@ -207,7 +210,7 @@ pub fn fit_car(samples: &[Sample], overconfidence: f64) -> Scales {
         if det.abs() > 1e-12 * (saa * sbb).abs().max(1e-300) {
             ((say * sbb - sby * sab) / det, (saa * sby - sab * say) / det)
         } else {
-            (1.0, 0.0)
+            (kept, 0.0)
         }
     };
     let (turn, offset) = (turn as f32, offset as f32);
@@ -402,6 +405,30 @@ mod tests {
         // Too few: nothing.
         let f = fit_car(&s[..10], 1.0);
         assert_eq!((f.turn, f.offset, f.turn_frames), (1.0, 0.0, 0));
+        // Vision sees 0.8 of the distance on every frame (speed x0.8) and no turn well:
+        // the curvature per unit angle is kept, the yaw scaled with the distance (turn
+        // x0.8), and the straight frames' 0.004 rad of yaw over the model's 5 cm give the
+        // offset, 0.08 rad per metre.
+        let s: Vec<Sample> = (0..30)
+            .map(|_| {
+                sample(
+                    Motion::new(0.05, 0.0, 0.0),
+                    Motion::new(0.04, 0.0, 0.004),
+                    [1e8, 1e8, 1e7],
+                )
+            })
+            .chain((0..30).map(|_| {
+                sample(
+                    Motion::new(0.05, 0.0, 0.1),
+                    Motion::new(0.04, 0.0, 0.3),
+                    [1e8, 1e8, 10.0],
+                )
+            }))
+            .collect();
+        let f = fit_car(&s, 1.0);
+        assert!((f.speed - 0.8).abs() < 1e-4, "{f:?}");
+        assert!((f.turn - 0.8).abs() < 1e-4, "{f:?}");
+        assert!((f.offset - 0.08).abs() < 1e-4, "{f:?}");
     }
 
     #[test]
