@@ -1,6 +1,7 @@
 //! `jetpilot poses`: poses for a recording that has none, by visual odometry on the ground
-//! plane fused with the wheel commands; or, with `--check`, the drift of that estimate
-//! against a tub whose poses are known.
+//! plane fused with the recorded commands (a JetBot's wheels or a DonkeyCar's steering and
+//! throttle); or, with `--check`, the drift of that estimate against a tub whose poses are
+//! known.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -10,18 +11,45 @@ use anyhow::Context;
 use jetpilot::config::Config;
 use jetpilot::dataset::tub::TubReader;
 use jetpilot::sim::Pose2;
+use jetpilot::sim::camera::CameraModel;
+use jetpilot::sim::odometry::birdseye::ViewGrid;
 use jetpilot::sim::odometry::output::Labels;
-use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, check, output};
+use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, Vehicle, check, output};
+
+/// Which motion model gives the prior.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VehicleArg {
+    /// From the tub's fields: `wheels/left`, `wheels/right` -> wheels; only `user/angle`,
+    /// `user/throttle` -> car.
+    Auto,
+    /// Differential drive (JetBot), `[sim.robot]`.
+    Wheels,
+    /// Car-like, Ackermann steering (DonkeyCar), `[sim.car]`.
+    Car,
+}
 
 #[derive(Debug, clap::Args)]
 pub struct PosesArgs {
     /// The recording (a tub, as `jetpilot record` writes it). It is only read.
     #[arg(long, value_name = "DIR")]
     tub: PathBuf,
-    /// Config with the camera (`[sim.camera]`: lens, height, tilt) and the robot
-    /// (`[sim.robot]`: wheel base, motor model); default: JetBot's.
+    /// Config with the camera (`[sim.camera]`: lens, height, tilt), the robot
+    /// (`[sim.robot]`: wheel base, motor model; `[sim.car]` for a car) and the chassis mask
+    /// (`[sim.chassis]`); default: JetBot's, or for a car DonkeyCar's wide-angle camera at
+    /// the tub's frame size (config/donkeycar.toml).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// The motion model of the prior.
+    #[arg(long, value_enum, default_value_t = VehicleArg::Auto)]
+    vehicle: VehicleArg,
+    /// Registration's pyramid levels (the finest and this many minus one coarser; 0: 1 for
+    /// the wheels, 2 for a car, whose 5 cm per frame at 20 Hz is several cells).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    levels: usize,
+    /// Do not leave the chassis (pixels that never change, joined to the bottom edge) out
+    /// of registration.
+    #[arg(long)]
+    no_chassis_mask: bool,
     /// The new tub, with `pose/x`, `pose/y`, `pose/heading` (default: `<tub>-poses`);
     /// `poses.csv` (per frame: pose, confidence, source) and `poses.png` (the trace) go
     /// in it too. With --check: also write the estimate there (the tub with its poses
@@ -61,7 +89,19 @@ pub struct PosesArgs {
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
 fn print_calibration(est: &odometry::Estimate) {
-    if let Some(sc) = est.scales {
+    if let Some(n) = est.masked_pixels {
+        println!("chassis mask:    {n} pixels left out of registration");
+    }
+    if let (Some(sc), Some(car)) = (est.scales, est.car) {
+        println!(
+            "car model:       speed x{:.3} ({} frames), turn x{:.3} and offset {:+.3} rad/m ({} frames), calibrated from the frames",
+            sc.speed, sc.speed_frames, sc.turn, sc.offset, sc.turn_frames
+        );
+        println!(
+            "                 {:.2} m/s per unit throttle, curvature {:+.3} /m per unit angle {:+.3} /m",
+            car.speed_per_throttle_mps, car.curvature_per_unit, car.curvature_offset
+        );
+    } else if let Some(sc) = est.scales {
         println!(
             "wheel model:     speed x{:.3} ({} frames), turn x{:.3} ({} frames), calibrated from the frames",
             sc.speed, sc.speed_frames, sc.turn, sc.turn_frames
@@ -109,18 +149,62 @@ fn replay_file(args: &PosesArgs, cfg: &Config) -> anyhow::Result<(&'static str, 
     Ok((output::REPLAY_CONFIG, text))
 }
 
-pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
-    let cfg = load_config(args.config.as_deref())?;
-    let sim = &cfg.sim;
-    let tub = TubReader::open(&args.tub)
-        .with_context(|| format!("reading the tub {}", args.tub.display()))?;
-    let params = OdometryParams {
+/// The vehicle `args.vehicle` names, or the tub's fields call for.
+fn vehicle(args: &PosesArgs, tub: &TubReader, cfg: &Config) -> Vehicle {
+    match args.vehicle {
+        VehicleArg::Auto => Vehicle::for_tub(tub, cfg.sim.robot, cfg.sim.car),
+        VehicleArg::Wheels => Vehicle::Wheels(cfg.sim.robot),
+        VehicleArg::Car => Vehicle::Car(cfg.sim.car),
+    }
+}
+
+/// The camera and the odometry settings for `vehicle`: a car without a config gets
+/// DonkeyCar's wide-angle camera at the tub's frame size, and a car the grid of floor
+/// that camera resolves.
+fn setup(
+    args: &PosesArgs,
+    tub: &TubReader,
+    cfg: &Config,
+    vehicle: &Vehicle,
+) -> (CameraModel, OdometryParams) {
+    let mut camera = cfg.sim.camera;
+    let mut params = OdometryParams {
         scatter_ref: args.scatter_ref,
         flat_field: args.flat_field,
+        chassis: cfg.sim.chassis,
         ..OdometryParams::default()
     };
+    if args.no_chassis_mask {
+        params.chassis.find = Some(false);
+        params.chassis.below_row = None;
+    }
+    if let Vehicle::Car(_) = vehicle {
+        params.grid = ViewGrid::donkeycar();
+        params.levels = 2;
+        if args.config.is_none() {
+            let size = tub.records().find_map(|r| tub.load_rgb(r).ok());
+            if let Some((w, h, _)) = size {
+                camera = CameraModel::donkeycar(w, h);
+            }
+        }
+    }
+    if args.levels > 0 {
+        params.levels = args.levels;
+    }
+    (camera, params)
+}
+
+pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
+    let mut cfg = load_config(args.config.as_deref())?;
+    let tub = TubReader::open(&args.tub)
+        .with_context(|| format!("reading the tub {}", args.tub.display()))?;
+    let vehicle = vehicle(&args, &tub, &cfg);
+    let (camera, params) = setup(&args, &tub, &cfg, &vehicle);
+    // The replay config written beside the new tub names the camera the poses used.
+    cfg.sim.camera = camera;
+    println!("motion model:    {}", vehicle.name());
     if args.check {
-        return check_against_truth(&args, &tub, &cfg, params);
+        return check_against_truth(&args, &tub, &cfg, vehicle, params);
     }
     if let Some(rec) = tub.records().find(|r| r.pose.is_some()) {
         anyhow::bail!(
@@ -137,14 +221,16 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     output::refuse_existing(&out)?;
     // Written before the estimate runs, so a config that cannot be written costs no run.
     let replay = replay_file(&args, &cfg)?;
+    let started = std::time::Instant::now();
     let est = odometry::estimate(
         &tub,
-        &sim.camera,
-        sim.robot,
+        &cfg.sim.camera,
+        vehicle,
         params,
         Pose2::default(),
         ReadOptions::default(),
     )?;
+    let took = started.elapsed().as_secs_f32();
     for w in &est.warnings {
         tracing::warn!("{w}");
     }
@@ -159,12 +245,31 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         .map(|w| (w[1].pose.x - w[0].pose.x).hypot(w[1].pose.y - w[0].pose.y))
         .sum();
     println!(
-        "{n} records with poses -> {} ({length:.2} m travelled; {flagged} of {} frames from the wheels alone, see poses.csv; trace: poses.png)",
+        "{n} records with poses -> {} ({length:.2} m travelled; {flagged} of {} frames from the prior alone, see poses.csv; trace: poses.png)",
         out.display(),
         est.poses.len().saturating_sub(1)
     );
+    print_sources(&est, took);
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
+}
+
+/// Where the frames' motions came from, each reason counted, and the confidence.
+fn print_sources(est: &odometry::Estimate, seconds: f32) {
+    let mut counts: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
+    for p in &est.poses {
+        *counts.entry(p.source.as_str()).or_default() += 1;
+    }
+    let list: Vec<String> = counts.iter().map(|(k, v)| format!("{k} {v}")).collect();
+    let mut conf: Vec<f32> = est.poses.iter().map(|p| p.confidence).collect();
+    conf.sort_by(f32::total_cmp);
+    let median = conf.get(conf.len() / 2).copied().unwrap_or(0.0);
+    let mean = conf.iter().sum::<f32>() / conf.len().max(1) as f32;
+    println!(
+        "frames:          {} ({}); confidence mean {mean:.3}, median {median:.3}; {seconds:.1} s",
+        est.poses.len(),
+        list.join(", ")
+    );
 }
 
 /// How to drive the new tub's replay.
@@ -181,6 +286,7 @@ fn check_against_truth(
     args: &PosesArgs,
     tub: &TubReader,
     cfg: &Config,
+    vehicle: Vehicle,
     params: OdometryParams,
 ) -> anyhow::Result<ExitCode> {
     let sim = &cfg.sim;
@@ -211,15 +317,16 @@ fn check_against_truth(
         noise: args.noise,
         blur: args.blur,
     };
-    let est = odometry::estimate(tub, &sim.camera, sim.robot, params, start, opts)?;
+    let est = odometry::estimate(tub, &sim.camera, vehicle, params, start, opts)?;
     let mut wheels_only = params;
     wheels_only.fusion.min_texture = f32::INFINITY;
     wheels_only.calibrate = false;
     wheels_only.flat_field = false;
+    wheels_only.chassis.find = Some(false);
     let base = odometry::estimate(
         tub,
         &sim.camera,
-        sim.robot,
+        vehicle,
         wheels_only,
         start,
         ReadOptions {

@@ -28,7 +28,9 @@
 //! leave: a torn last line is moved aside into `<catalog>.torn.<offset>` (never deleted)
 //! and its image into `images/<name>.orphan`, so indexes stay the records' positions as
 //! DonkeyCar expects; a record written before the manifests caught up is counted. [`TubReader`] skips a
-//! torn last line with a warning and reads every complete record before it.
+//! torn last line with a warning and reads every complete record before it; a record
+//! whose image is missing, a listed catalog that is missing and a catalog whose
+//! `.catalog_manifest` is missing are warnings too, not errors.
 //!
 //! The library never reads the wall clock: record timestamps and `created_at` come from
 //! the caller. The session id `YY-MM-DD_<n>` takes its date (UTC) from `created_at`.
@@ -1119,8 +1121,10 @@ pub struct TubReader {
 impl TubReader {
     /// Reads `manifest.json` and every catalog it lists. A torn last line of a catalog (a
     /// crash mid-write) is skipped and reported in [`warnings`](Self::warnings), as is a
-    /// record whose image file is missing; any other malformed line is an error naming the
-    /// catalog file and line.
+    /// record whose image file is missing, a catalog the manifest lists that is missing
+    /// (its records are lost), and a catalog whose `.catalog_manifest` (DonkeyCar's index of
+    /// its line lengths) is missing (the records are read from the catalog itself); any
+    /// other malformed line is an error naming the catalog file and line.
     pub fn open(dir: &Path) -> Result<Self> {
         let manifest = Manifest::read(&dir.join(MANIFEST))?;
         let images = dir.join(IMAGES_DIR);
@@ -1128,6 +1132,20 @@ impl TubReader {
         let mut warnings = Vec::new();
         for name in &manifest.paths {
             let path = dir.join(name);
+            if !path.exists() {
+                warnings.push(format!(
+                    "{}: listed in {MANIFEST} but missing; its records are skipped",
+                    path.display()
+                ));
+                continue;
+            }
+            let index = dir.join(catalog_manifest_name(name));
+            if !index.exists() {
+                warnings.push(format!(
+                    "{}: missing (DonkeyCar needs it to read the catalog); records read from {name} itself",
+                    index.display()
+                ));
+            }
             let bytes = std::fs::read(&path).map_err(io_err(&path))?;
             let mut lines: Vec<&[u8]> = bytes.split(|&b| b == b'\n').collect();
             // The text after the last newline: empty in a clean file, else a torn record.

@@ -133,6 +133,30 @@ impl CameraModel {
         }
     }
 
+    /// A DonkeyCar's wide-angle camera (the Raspberry Pi camera with a 160 degree
+    /// diagonal fisheye, equidistant, its 4:3 capture), 15 cm up and 8 cm ahead
+    /// of the rear axle, tilted down 20 degrees. Set by eye on `donkey_tub_tarp`'s 160x120
+    /// frames, not fitted: the horizon lies about 25 px above the centre, and 160 degrees
+    /// over the 200 px diagonal is 1.25 px/degree, so the tilt is about 20 degrees; the
+    /// height is a DonkeyCar's usual mount. A wrong height scales every distance (the speed
+    /// calibration then absorbs it), a wrong tilt bends the floor.
+    pub fn donkeycar(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            lens: LensKind::Fisheye,
+            hfov_deg: 120.0,
+            fisheye_fov_deg: 160.0,
+            fisheye_k: [0.0; 4],
+            // The sensor's 4:3 (the frame is not rescaled at 160x120); set rather than left
+            // unset so a config file can spell it out.
+            capture_aspect: Some(4.0 / 3.0),
+            height_m: 0.15,
+            tilt_deg: 20.0,
+            forward_m: 0.08,
+        }
+    }
+
     /// Checks that the model describes a usable camera.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |what: String| Err(SimError::Invalid(format!("camera: {what}")));

@@ -103,6 +103,10 @@ pub struct SimConfig {
     pub mat_px_per_m: f32,
     pub camera: CameraModel,
     pub robot: RobotParams,
+    /// A car-like vehicle's command response (`jetpilot poses` on a DonkeyCar tub).
+    pub car: super::odometry::ackermann::CarParams,
+    /// The chassis mask `jetpilot poses` leaves out of registration.
+    pub chassis: super::odometry::mask::ChassisConfig,
     pub reward: RewardParams,
     pub expert: ExpertParams,
     /// No progress along the track for this long is an intervention too.
@@ -133,6 +137,8 @@ impl Default for SimConfig {
             mat_px_per_m: 400.0,
             camera: CameraModel::default(),
             robot: RobotParams::default(),
+            car: super::odometry::ackermann::CarParams::default(),
+            chassis: super::odometry::mask::ChassisConfig::default(),
             reward: RewardParams::default(),
             expert: ExpertParams::default(),
             stall: super::world::StallRule::default(),

@@ -129,3 +129,26 @@ fn the_sim_config_sees_through_jetbots_camera() {
     assert_eq!(cam, jetpilot::sim::camera::CameraModel::jetbot(224, 224));
     assert_eq!(cam, jetpilot::sim::camera::CameraModel::default());
 }
+
+#[test]
+fn the_donkeycar_config_spells_out_the_car_its_camera_and_the_chassis_mask() {
+    // `poses --config config/donkeycar.toml` means what `poses` does for a car without one.
+    let sim = load("donkeycar.toml").sim;
+    assert_eq!(
+        sim.camera,
+        jetpilot::sim::camera::CameraModel::donkeycar(160, 120)
+    );
+    assert_eq!(
+        sim.car,
+        jetpilot::sim::odometry::ackermann::CarParams::default()
+    );
+    let chassis = sim.chassis;
+    assert_eq!(chassis.find, Some(true));
+    assert_eq!(
+        jetpilot::sim::odometry::mask::ChassisConfig {
+            find: None,
+            ..chassis
+        },
+        jetpilot::sim::odometry::mask::ChassisConfig::default()
+    );
+}

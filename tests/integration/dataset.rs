@@ -491,6 +491,51 @@ fn missing_image_is_reported_and_skipped() {
 }
 
 #[test]
+fn a_donkeycar_tub_with_a_missing_image_a_torn_line_and_no_index_is_read_with_warnings() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("donkey");
+    donkey_tub(&dir);
+    // Record 2's image gone, a torn line after the last record, and DonkeyCar's index of
+    // the catalog's line lengths deleted.
+    std::fs::remove_file(dir.join("images/2_cam_image_array_.jpg")).unwrap();
+    let catalog = dir.join("catalog_0.catalog");
+    let mut text = std::fs::read(&catalog).unwrap();
+    text.extend_from_slice(br#"{"_index": 3, "_session_id": "21-11-21_0", "_timest"#);
+    std::fs::write(&catalog, text).unwrap();
+    std::fs::remove_file(dir.join("catalog_0.catalog_manifest")).unwrap();
+    let r = TubReader::open(&dir).unwrap();
+    // Record 1 is soft-deleted, 2 has no image: record 0 is left.
+    assert_eq!(r.records().map(|r| r.index).collect::<Vec<_>>(), vec![0]);
+    let w = r.warnings();
+    assert_eq!(w.len(), 3, "{w:?}");
+    assert!(
+        w[0].contains("catalog_0.catalog_manifest: missing"),
+        "{w:?}"
+    );
+    assert!(w[1].contains("line 4: torn last line"), "{w:?}");
+    assert!(
+        w[2].contains("record 2") && w[2].contains("2_cam_image_array_.jpg is missing"),
+        "{w:?}"
+    );
+    // A catalog the manifest lists but that is gone: its records are lost, with a warning.
+    let m = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&m).unwrap().replace(
+        r#"["catalog_0.catalog"]"#,
+        r#"["catalog_0.catalog", "catalog_1.catalog"]"#,
+    );
+    std::fs::write(&m, text).unwrap();
+    let r = TubReader::open(&dir).unwrap();
+    assert_eq!(r.len(), 1);
+    assert!(
+        r.warnings()
+            .iter()
+            .any(|w| w.contains("catalog_1.catalog: listed in manifest.json but missing")),
+        "{:?}",
+        r.warnings()
+    );
+}
+
+#[test]
 fn bad_input_is_refused_before_anything_is_written() {
     let tmp = tempfile::tempdir().unwrap();
     // A folder holding something else is not turned into a tub.

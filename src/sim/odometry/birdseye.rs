@@ -12,6 +12,7 @@
 
 use super::super::Pose2;
 use super::super::camera::CameraModel;
+use super::mask::PixelMask;
 
 /// The ground patch a view covers, in the robot frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,6 +37,17 @@ impl Default for ViewGrid {
 }
 
 impl ViewGrid {
+    /// The floor a DonkeyCar's wide-angle camera ([`CameraModel::donkeycar`]) resolves at
+    /// 160x120: 17 to 49 cm ahead of the rear axle, 24 cm each side, 8 mm cells (a pixel
+    /// spans 6 mm of floor at 20 cm and 2 cm at 45 cm).
+    pub fn donkeycar() -> Self {
+        Self {
+            forward_m: (0.17, 0.49),
+            left_m: (-0.24, 0.24),
+            cell_m: 0.008,
+        }
+    }
+
     pub fn rows(&self) -> usize {
         ((self.forward_m.1 - self.forward_m.0) / self.cell_m)
             .round()
@@ -193,6 +205,27 @@ impl Warp {
         self.grid
     }
 
+    /// The same table with every cell whose bilinear sample touches a masked pixel made
+    /// unseen (the chassis: [`super::mask`]). A mask of another size changes nothing.
+    pub fn masked(mut self, mask: &PixelMask) -> Self {
+        if (mask.width, mask.height) != (self.width, self.height) {
+            return self;
+        }
+        for p in self.pixel.iter_mut() {
+            if let Some((u, v)) = *p {
+                let (x0, y0) = ((u - 0.5).floor() as usize, (v - 0.5).floor() as usize);
+                if mask.at(x0, y0)
+                    || mask.at(x0 + 1, y0)
+                    || mask.at(x0, y0 + 1)
+                    || mask.at(x0 + 1, y0 + 1)
+                {
+                    *p = None;
+                }
+            }
+        }
+        self
+    }
+
     /// Cells the camera sees.
     pub fn seen(&self) -> usize {
         self.pixel.iter().filter(|p| p.is_some()).count()
@@ -283,6 +316,16 @@ mod tests {
         );
         // A wrong-sized frame is unseen everywhere.
         assert_eq!(warp.view(&rgb, 100, 100).stats().2, 0);
+        // Masking the rows from the dot's down hides the dot's cell and every cell nearer.
+        let seen = warp.seen();
+        let near = warp
+            .clone()
+            .masked(&PixelMask::below_row(224, 224, v as u32 - 1));
+        assert!(near.view(&rgb, 224, 224).at(at.0, at.1).is_nan());
+        assert!(near.seen() < seen && near.seen() > 0);
+        let (u0, v0) = cam.ground_to_pixel(&Pose2::default(), 0.35, 0.0).unwrap();
+        assert!(v0 < v - 1.0, "a far cell ({u0}, {v0}) stays");
+        assert_eq!(warp.clone().masked(&PixelMask::none(10, 10)).seen(), seen);
     }
 
     #[test]

@@ -22,6 +22,9 @@ pub struct Scales {
     pub speed: f32,
     /// ...and their turn rate by this.
     pub turn: f32,
+    /// The car model only ([`fit_car`]): radians of yaw per metre the uncorrected model
+    /// travels, added (a steering trim that is off); 0 for the wheels.
+    pub offset: f32,
     /// Frames that measured each (fewer than [`MIN_FRAMES`]: the scale stays 1).
     pub speed_frames: usize,
     pub turn_frames: usize,
@@ -61,6 +64,45 @@ fn weighted_scale(triples: impl Iterator<Item = (f64, f64, f64)>) -> (Option<f64
 /// than it measures, fewer frames count as well measured, and with fewer than
 /// [`MIN_FRAMES`] the wheel model is left as configured.
 pub fn fit(samples: &[Sample], overconfidence: f64) -> Scales {
+    fit_with(samples, overconfidence, &JETBOT)
+}
+
+/// What counts as a well-measured frame, and how far a scale may go.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thresholds {
+    /// Forward: vision's standard deviation at most this (m) while the prior moves at
+    /// least `min_forward_m`.
+    pub forward_sd_m: f64,
+    pub min_forward_m: f32,
+    /// The turn: at most this (rad) while the prior turns at least `min_yaw_rad`.
+    pub yaw_sd_rad: f64,
+    pub min_yaw_rad: f32,
+    /// The scales are kept within this range.
+    pub range: (f32, f32),
+}
+
+/// A JetBot at 224x224, 4 mm cells, 0.2 m/s at 10-30 Hz: 3-20 mm a frame.
+pub const JETBOT: Thresholds = Thresholds {
+    forward_sd_m: 5e-4,
+    min_forward_m: 0.003,
+    yaw_sd_rad: 3e-3,
+    min_yaw_rad: 0.008,
+    range: RANGE,
+};
+
+/// A DonkeyCar at 160x120, 8 mm cells, about 1 m/s at 20 Hz: 5 cm a frame, and up to
+/// 0.1 rad in a turn. The scales may go further ([`CAR_RANGE`]).
+pub const CAR: Thresholds = Thresholds {
+    forward_sd_m: 2e-3,
+    min_forward_m: 0.01,
+    yaw_sd_rad: 5e-3,
+    min_yaw_rad: 0.02,
+    range: CAR_RANGE,
+};
+
+/// [`fit`] with `t`'s thresholds.
+fn fit_with(samples: &[Sample], overconfidence: f64, t: &Thresholds) -> Scales {
+    let range = t.range;
     let inflate = if overconfidence.is_finite() {
         overconfidence.max(1.0).sqrt()
     } else {
@@ -87,11 +129,11 @@ pub fn fit(samples: &[Sample], overconfidence: f64) -> Scales {
             (_, n) => (1.0, n),
         }
     };
-    let (speed, speed_frames) = fit_one(&|m| m.forward, 0, 5e-4, 0.003);
-    let (turn, turn_frames) = fit_one(&|m| m.yaw, 2, 3e-3, 0.008);
+    let (speed, speed_frames) = fit_one(&|m| m.forward, 0, t.forward_sd_m, t.min_forward_m);
+    let (turn, turn_frames) = fit_one(&|m| m.yaw, 2, t.yaw_sd_rad, t.min_yaw_rad);
     let clamp = |v: f32| {
         if v.is_finite() {
-            v.clamp(RANGE.0, RANGE.1)
+            v.clamp(range.0, range.1)
         } else {
             1.0
         }
@@ -99,8 +141,96 @@ pub fn fit(samples: &[Sample], overconfidence: f64) -> Scales {
     Scales {
         speed: clamp(speed),
         turn: clamp(turn),
+        offset: 0.0,
         speed_frames,
         turn_frames,
+    }
+}
+
+/// The steering offset is kept within this, rad per metre (a 2 m radius at angle 0).
+pub const OFFSET_RANGE: f32 = 0.5;
+/// The car's scales are kept within this: its defaults are a guess at a DonkeyCar, not a
+/// measured motor model like the JetBot's, and may be off by more than [`RANGE`] allows.
+pub const CAR_RANGE: (f32, f32) = (0.25, 4.0);
+
+/// The car model's corrections ([`super::ackermann`]): the speed as [`fit`] with the
+/// [`CAR`] thresholds; the turn scale and the steering offset together, by least squares
+/// of vision's yaw on the prior's yaw and distance, `yaw_v = turn * yaw_p + offset *
+/// forward_p`, weighted by vision's yaw information, over the frames whose yaw vision
+/// measures to [`CAR`]'s 5 mrad while the prior moves at least 1 cm. Straight frames fix
+/// the offset, turning ones the scale. With fewer than [`MIN_FRAMES`] turning frames
+/// (prior yaw at least 0.02 rad) the curvature per unit angle stays as configured (the
+/// turn scale is the speed scale: the yaw follows the corrected distance) and the offset
+/// alone is fitted; with fewer than [`MIN_FRAMES`] frames in all, neither.
+pub fn fit_car(samples: &[Sample], overconfidence: f64) -> Scales {
+    let t = &CAR;
+    let base = fit_with(samples, overconfidence, t);
+    let inflate = if overconfidence.is_finite() {
+        overconfidence.max(1.0).sqrt()
+    } else {
+        1.0
+    };
+    let rows: Vec<(f64, f64, f64, f64)> = samples
+        .iter()
+        .filter(|s| s.vision.converged && s.prior.forward >= t.min_forward_m)
+        .filter_map(|s| {
+            let sd = marginal_sd(&s.vision, 2) * inflate;
+            (sd.is_finite() && sd <= t.yaw_sd_rad).then(|| {
+                (
+                    f64::from(s.prior.yaw),
+                    f64::from(s.prior.forward),
+                    f64::from(s.vision.motion.yaw),
+                    1.0 / (sd * sd),
+                )
+            })
+        })
+        .collect();
+    let turning = rows
+        .iter()
+        .filter(|r| r.0.abs() >= f64::from(t.min_yaw_rad))
+        .count();
+    // The curvature kept: the yaw scales with the corrected distance.
+    let kept = f64::from(base.speed);
+    let (turn, offset) = if rows.len() < MIN_FRAMES {
+        (kept, 0.0)
+    } else if turning < MIN_FRAMES {
+        // The offset alone: yaw_v - kept * yaw_p = offset * forward_p.
+        let (o, _) = weighted_scale(rows.iter().map(|&(a, b, y, w)| (b, y - kept * a, w)));
+        (kept, o.unwrap_or(0.0))
+    } else {
+        let (mut saa, mut sab, mut sbb, mut say, mut sby) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(a, b, y, w) in &rows {
+            saa += w * a * a;
+            sab += w * a * b;
+            sbb += w * b * b;
+            say += w * a * y;
+            sby += w * b * y;
+        }
+        let det = saa * sbb - sab * sab;
+        if det.abs() > 1e-12 * (saa * sbb).abs().max(1e-300) {
+            ((say * sbb - sby * sab) / det, (saa * sby - sab * say) / det)
+        } else {
+            (kept, 0.0)
+        }
+    };
+    let (turn, offset) = (turn as f32, offset as f32);
+    Scales {
+        turn: if turn.is_finite() {
+            turn.clamp(t.range.0, t.range.1)
+        } else {
+            1.0
+        },
+        offset: if offset.is_finite() {
+            offset.clamp(-OFFSET_RANGE, OFFSET_RANGE)
+        } else {
+            0.0
+        },
+        turn_frames: if rows.len() < MIN_FRAMES {
+            0
+        } else {
+            rows.len()
+        },
+        ..base
     }
 }
 
@@ -232,6 +362,73 @@ mod tests {
         // Below 1 or not a number: as 1.
         assert_eq!(fit(&s, 0.5), fit(&s, 1.0));
         assert_eq!(fit(&s, f64::NAN), fit(&s, 1.0));
+    }
+
+    #[test]
+    fn the_cars_turn_scale_and_steering_offset_from_straight_and_turning_frames() {
+        let mut s = Vec::new();
+        // 30 straight frames, 5 cm each: vision sees 0.005 rad of yaw every time, a trim
+        // that is off by 0.1 rad per metre.
+        for _ in 0..30 {
+            s.push(sample(
+                Motion::new(0.05, 0.0, 0.0),
+                Motion::new(0.05, 0.0, 0.005),
+                [1e8, 1e8, 1e7],
+            ));
+        }
+        // 30 turning frames: the model says 0.1 rad over 5 cm, vision 0.125 = 1.2 x 0.1 +
+        // 0.1 x 0.05.
+        for _ in 0..30 {
+            s.push(sample(
+                Motion::new(0.05, 0.0, 0.1),
+                Motion::new(0.05, 0.0, 0.125),
+                [1e8, 1e8, 1e7],
+            ));
+        }
+        // Frames whose yaw vision does not measure are ignored.
+        for _ in 0..30 {
+            s.push(sample(
+                Motion::new(0.05, 0.0, 0.1),
+                Motion::new(0.05, 0.0, -0.3),
+                [1e8, 1e8, 10.0],
+            ));
+        }
+        let f = fit_car(&s, 1.0);
+        assert!((f.turn - 1.2).abs() < 1e-4, "{f:?}");
+        assert!((f.offset - 0.1).abs() < 1e-4, "{f:?}");
+        assert_eq!(f.turn_frames, 60);
+        assert!((f.speed - 1.0).abs() < 1e-4, "{f:?}");
+        // Straight frames only: the offset alone, 0.005 / 0.05.
+        let f = fit_car(&s[..30], 1.0);
+        assert_eq!(f.turn, 1.0);
+        assert!((f.offset - 0.1).abs() < 1e-4, "{f:?}");
+        // Too few: nothing.
+        let f = fit_car(&s[..10], 1.0);
+        assert_eq!((f.turn, f.offset, f.turn_frames), (1.0, 0.0, 0));
+        // Vision sees 0.8 of the distance on every frame (speed x0.8) and no turn well:
+        // the curvature per unit angle is kept, the yaw scaled with the distance (turn
+        // x0.8), and the straight frames' 0.004 rad of yaw over the model's 5 cm give the
+        // offset, 0.08 rad per metre.
+        let s: Vec<Sample> = (0..30)
+            .map(|_| {
+                sample(
+                    Motion::new(0.05, 0.0, 0.0),
+                    Motion::new(0.04, 0.0, 0.004),
+                    [1e8, 1e8, 1e7],
+                )
+            })
+            .chain((0..30).map(|_| {
+                sample(
+                    Motion::new(0.05, 0.0, 0.1),
+                    Motion::new(0.04, 0.0, 0.3),
+                    [1e8, 1e8, 10.0],
+                )
+            }))
+            .collect();
+        let f = fit_car(&s, 1.0);
+        assert!((f.speed - 0.8).abs() < 1e-4, "{f:?}");
+        assert!((f.turn - 0.8).abs() < 1e-4, "{f:?}");
+        assert!((f.offset - 0.08).abs() < 1e-4, "{f:?}");
     }
 
     #[test]

@@ -1,5 +1,7 @@
-//! Poses for a recording that has none (a real robot's `jetpilot record` tub): visual
-//! odometry on the ground plane, fused with the recorded wheel commands.
+//! Poses for a recording that has none (a real robot's `jetpilot record` tub, a
+//! DonkeyCar's): visual odometry on the ground plane, fused with a prior from the recorded
+//! commands: a differential drive's wheel duties ([`wheels`]) or a car's steering angle and
+//! throttle ([`ackermann`]), chosen by the tub's fields ([`Vehicle::for_tub`]) or by config.
 //!
 //! ```text
 //! frame k+1 --birdseye--> view --pyramid--+
@@ -14,10 +16,14 @@
 //! trace; [`check`] measures the drift against a tub whose poses are known (the
 //! simulator's).
 
+pub mod ackermann;
 pub mod birdseye;
 pub mod calibrate;
+#[cfg(test)]
+mod car_drive_test;
 pub mod check;
 pub mod fuse;
+pub mod mask;
 pub mod output;
 pub mod register;
 pub mod wheels;
@@ -30,8 +36,10 @@ use super::robot::RobotParams;
 use super::synth::{FlatFieldFit, RecordedFrame, Recording, Synthesizer};
 use super::{Pose2, SimError, wrap_angle};
 use crate::dataset::tub::{TubReader, TubRecord};
+use ackermann::{CarOdometry, CarParams};
 use birdseye::{View, ViewGrid, Warp};
 use fuse::{FusionParams, Source};
+use mask::{ChassisConfig, PixelMask};
 use register::{Motion, register};
 use wheels::WheelOdometry;
 
@@ -61,6 +69,9 @@ pub struct OdometryParams {
     /// [`FlatField`] on the first estimate's poses and, where it explains the frames,
     /// estimate again on the flattened frames.
     pub flat_field: bool,
+    /// The chassis mask: pixels that show the vehicle itself are left out of
+    /// registration ([`mask`]).
+    pub chassis: ChassisConfig,
 }
 
 impl Default for OdometryParams {
@@ -72,6 +83,85 @@ impl Default for OdometryParams {
             calibrate: true,
             scatter_ref: 4.0,
             flat_field: false,
+            chassis: ChassisConfig::default(),
+        }
+    }
+}
+
+/// The vehicle whose commands give the prior.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Vehicle {
+    /// Differential drive (JetBot): the wheels' duties set the wheels' speeds.
+    Wheels(RobotParams),
+    /// Car-like (DonkeyCar, Ackermann steering): the angle sets a curvature, the throttle
+    /// a speed.
+    Car(CarParams),
+}
+
+impl Vehicle {
+    /// The model a tub's fields call for: `wheels/left`, `wheels/right` in any record:
+    /// the differential drive; only `user/angle` and `user/throttle`: the car.
+    pub fn for_tub(tub: &TubReader, robot: RobotParams, car: CarParams) -> Vehicle {
+        if tub.records().any(|r| r.wheels.is_some()) {
+            Vehicle::Wheels(robot)
+        } else {
+            Vehicle::Car(car)
+        }
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Vehicle::Wheels(_) => "differential drive (wheels/left, wheels/right)",
+            Vehicle::Car(_) => "car-like (user/angle -> curvature, user/throttle -> speed)",
+        }
+    }
+}
+
+/// A record's command, as recorded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    /// Wheel duties `(left, right)`, -1..1.
+    Wheels(f32, f32),
+    /// DonkeyCar's steering angle and throttle, -1..1.
+    Steer { angle: f32, throttle: f32 },
+}
+
+/// The prior's motion model, running.
+#[derive(Debug, Clone)]
+enum Prior {
+    Wheels(WheelOdometry),
+    Car(CarOdometry),
+}
+
+impl Prior {
+    fn new(vehicle: Vehicle) -> Self {
+        match vehicle {
+            Vehicle::Wheels(robot) => Prior::Wheels(WheelOdometry::new(robot)),
+            Vehicle::Car(car) => Prior::Car(CarOdometry::new(car)),
+        }
+    }
+
+    /// `cmd` held for `dt` seconds; a command of the other kind is converted
+    /// ([`wheels::wheels_from_angle_throttle`] and its inverse).
+    fn advance(&mut self, cmd: Command, dt: f32) -> Motion {
+        match (self, cmd) {
+            (Prior::Wheels(w), Command::Wheels(l, r)) => w.advance(l, r, dt),
+            (Prior::Wheels(w), Command::Steer { angle, throttle }) => {
+                let (l, r) = wheels::wheels_from_angle_throttle(angle, throttle);
+                w.advance(l, r, dt)
+            }
+            (Prior::Car(c), Command::Steer { angle, throttle }) => c.advance(angle, throttle, dt),
+            (Prior::Car(c), Command::Wheels(l, r)) => {
+                let (angle, throttle) = ackermann::angle_throttle_from_wheels(l, r);
+                c.advance(angle, throttle, dt)
+            }
+        }
+    }
+
+    fn with_scales(self, sc: &calibrate::Scales) -> Self {
+        match self {
+            Prior::Wheels(w) => Prior::Wheels(w.with_scales(sc.speed, sc.turn)),
+            Prior::Car(c) => Prior::Car(c.with_scales(sc.speed, sc.turn, sc.offset)),
         }
     }
 }
@@ -105,7 +195,7 @@ pub fn compose(pose: &Pose2, m: &Motion) -> Pose2 {
 pub struct Odometer {
     warp: Warp,
     params: OdometryParams,
-    wheels: WheelOdometry,
+    prior: Prior,
     pose: Pose2,
     /// The prior's motion since the last frame.
     pending: Motion,
@@ -127,14 +217,14 @@ pub fn then(a: &Motion, b: &Motion) -> Motion {
 impl Odometer {
     pub fn new(
         camera: &CameraModel,
-        robot: RobotParams,
+        vehicle: Vehicle,
         params: OdometryParams,
         start: Pose2,
     ) -> Self {
         Self {
             warp: Warp::new(camera, params.grid),
             params,
-            wheels: WheelOdometry::new(robot),
+            prior: Prior::new(vehicle),
             pose: start,
             pending: Motion::default(),
             previous: None,
@@ -142,10 +232,24 @@ impl Odometer {
         }
     }
 
-    /// Applies calibrated wheel-model scales (from the start).
+    /// Applies calibrated motion-model corrections (from the start).
     pub fn with_scales(mut self, scales: &calibrate::Scales) -> Self {
-        self.wheels = self.wheels.with_scales(scales.speed, scales.turn);
+        self.prior = self.prior.with_scales(scales);
         self
+    }
+
+    /// Leaves the masked pixels (the chassis) out of every view.
+    pub fn with_mask(mut self, mask: &PixelMask) -> Self {
+        self.warp = self.warp.masked(mask);
+        self
+    }
+
+    /// The car model's parameters with the corrections folded in (`None` for wheels).
+    pub fn car_params(&self) -> Option<CarParams> {
+        match &self.prior {
+            Prior::Car(c) => Some(c.calibrated()),
+            Prior::Wheels(_) => None,
+        }
     }
 
     /// A calibration pass: frames are registered without the prior's pull and kept for
@@ -164,9 +268,9 @@ impl Odometer {
         self.pose
     }
 
-    /// The wheel duties `(left, right)` were held for `dt` seconds.
-    pub fn drive(&mut self, wheels: (f32, f32), dt: f32) {
-        let m = self.wheels.advance(wheels.0, wheels.1, dt);
+    /// The command `cmd` was held for `dt` seconds.
+    pub fn drive(&mut self, cmd: Command, dt: f32) {
+        let m = self.prior.advance(cmd, dt);
         self.pending = then(&self.pending, &m);
     }
 
@@ -197,11 +301,16 @@ impl Odometer {
     }
 }
 
-/// Wheel duties of a record: `wheels/left`, `wheels/right` when recorded, else from
-/// DonkeyCar's angle and throttle.
-pub fn record_wheels(rec: &TubRecord) -> (f32, f32) {
-    rec.wheels
-        .unwrap_or_else(|| wheels::wheels_from_angle_throttle(rec.user_angle, rec.user_throttle))
+/// A record's command: `wheels/left`, `wheels/right` when recorded, else DonkeyCar's
+/// angle and throttle.
+pub fn record_command(rec: &TubRecord) -> Command {
+    match rec.wheels {
+        Some((l, r)) => Command::Wheels(l, r),
+        None => Command::Steer {
+            angle: rec.user_angle,
+            throttle: rec.user_throttle,
+        },
+    }
 }
 
 /// How [`estimate`] reads frames.
@@ -219,8 +328,12 @@ pub struct ReadOptions {
 #[derive(Debug, Clone)]
 pub struct Estimate {
     pub poses: Vec<FramePose>,
-    /// The wheel model's corrections (when calibrated).
+    /// The motion model's corrections (when calibrated).
     pub scales: Option<calibrate::Scales>,
+    /// The car model's parameters with the corrections folded in (a car only).
+    pub car: Option<CarParams>,
+    /// Pixels left out of registration as the chassis (`None`: no mask was made).
+    pub masked_pixels: Option<usize>,
     /// Vision's scatter about the wheels ([`calibrate::scatter`]).
     pub scatter: Option<f64>,
     /// The prior's weight the fused pass used (`params.fusion.prior_weight`, raised by
@@ -255,12 +368,17 @@ pub fn held_harder(weight: f32, scatter: Option<f64>, reference: f64) -> f32 {
 pub fn estimate(
     tub: &TubReader,
     camera: &CameraModel,
-    robot: RobotParams,
+    vehicle: Vehicle,
     params: OdometryParams,
     start: Pose2,
     opts: ReadOptions,
 ) -> Result<Estimate, SimError> {
-    let warnings: Vec<String> = tub.warnings().to_vec();
+    match &vehicle {
+        Vehicle::Wheels(robot) => robot.validate()?,
+        Vehicle::Car(car) => car.validate()?,
+    }
+    camera.validate()?;
+    let mut warnings: Vec<String> = tub.warnings().to_vec();
     let records: Vec<&TubRecord> = tub
         .records()
         .filter(|r| !tub.deleted_indexes().contains(&r.index))
@@ -271,7 +389,20 @@ pub fn estimate(
             reason: "the tub has no records".into(),
         });
     };
-    let mut est = estimate_once(tub, &records, camera, robot, params, start, &opts, None)?;
+    let mask = chassis_mask(
+        tub,
+        &records,
+        camera,
+        &vehicle,
+        &params.chassis,
+        &mut warnings,
+    );
+    let setup = Setup {
+        camera,
+        vehicle,
+        mask: mask.as_ref(),
+    };
+    let mut est = estimate_once(tub, &records, &setup, params, start, &opts, None)?;
     est.warnings.splice(0..0, warnings);
     if !params.flat_field {
         return Ok(est);
@@ -281,28 +412,75 @@ pub fn estimate(
     let Some(field) = field else {
         return Ok(est);
     };
-    let mut again = estimate_once(
-        tub,
-        &records,
-        camera,
-        robot,
-        params,
-        start,
-        &opts,
-        Some(&field),
-    )?;
+    let mut again = estimate_once(tub, &records, &setup, params, start, &opts, Some(&field))?;
     again.warnings = est.warnings;
     again.flat_field = fit;
     Ok(again)
 }
 
-/// Calibration (if asked for) and the fused pass, on frames flattened by `flat` if given.
-#[allow(clippy::too_many_arguments)]
-fn estimate_once(
+/// What the odometer is built from: the camera, the vehicle, and the chassis mask.
+struct Setup<'a> {
+    camera: &'a CameraModel,
+    vehicle: Vehicle,
+    mask: Option<&'a PixelMask>,
+}
+
+impl Setup<'_> {
+    fn odometer(&self, params: OdometryParams, start: Pose2) -> Odometer {
+        let odo = Odometer::new(self.camera, self.vehicle, params, start);
+        match self.mask {
+            Some(m) => odo.with_mask(m),
+            None => odo,
+        }
+    }
+}
+
+/// The chassis mask of `config` for these records: found from the frames' per-pixel
+/// variance ([`mask::from_variance`]; by default for a car only) and/or set by row;
+/// `None` when neither is asked for or no frame could be read. A found mask over
+/// `config.max_fraction` of the frame is dropped, and a warning says so.
+pub fn chassis_mask(
     tub: &TubReader,
     records: &[&TubRecord],
     camera: &CameraModel,
-    robot: RobotParams,
+    vehicle: &Vehicle,
+    config: &ChassisConfig,
+    warnings: &mut Vec<String>,
+) -> Option<PixelMask> {
+    let (w, h) = (camera.width, camera.height);
+    let by_row = config.below_row.map(|r| PixelMask::below_row(w, h, r));
+    if !config.find.unwrap_or(matches!(vehicle, Vehicle::Car(_))) {
+        return by_row;
+    }
+    let mut var = mask::Variance::new(w, h);
+    for rec in records {
+        if let Ok((fw, fh, rgb)) = tub.load_rgb(rec) {
+            var.add(&rgb, fw, fh);
+        }
+    }
+    if var.frames() < 2 {
+        return by_row;
+    }
+    let found = mask::from_variance(&var.std(), w, h, config.max_std);
+    if found.fraction() > config.max_fraction {
+        warnings.push(format!(
+            "chassis mask: {:.0} % of the frame hardly changes over the drive, more than a chassis ([sim.chassis] max_fraction {:.0} %); not used",
+            found.fraction() * 100.0,
+            config.max_fraction * 100.0
+        ));
+        return by_row;
+    }
+    Some(match by_row {
+        Some(r) => found.or(&r),
+        None => found,
+    })
+}
+
+/// Calibration (if asked for) and the fused pass, on frames flattened by `flat` if given.
+fn estimate_once(
+    tub: &TubReader,
+    records: &[&TubRecord],
+    setup: &Setup,
     params: OdometryParams,
     start: Pose2,
     opts: &ReadOptions,
@@ -310,11 +488,22 @@ fn estimate_once(
 ) -> Result<Estimate, SimError> {
     let mut warnings = Vec::new();
     let (scales, scatter) = if params.calibrate {
-        let mut odo = Odometer::new(camera, robot, params, start).calibrating();
-        pass(tub, records, camera, opts, flat, &mut odo, &mut Vec::new())?;
+        let mut odo = setup.odometer(params, start).calibrating();
+        pass(
+            tub,
+            records,
+            setup.camera,
+            opts,
+            flat,
+            &mut odo,
+            &mut Vec::new(),
+        )?;
         let scatter = calibrate::scatter(odo.samples());
         let overconfidence = calibrate::overconfidence(scatter, params.scatter_ref);
-        let scales = calibrate::fit(odo.samples(), overconfidence);
+        let scales = match setup.vehicle {
+            Vehicle::Wheels(_) => calibrate::fit(odo.samples(), overconfidence),
+            Vehicle::Car(_) => calibrate::fit_car(odo.samples(), overconfidence),
+        };
         (Some(scales), scatter)
     } else {
         (None, None)
@@ -322,14 +511,24 @@ fn estimate_once(
     let mut params = params;
     params.fusion.prior_weight =
         held_harder(params.fusion.prior_weight, scatter, params.scatter_ref);
-    let mut odo = Odometer::new(camera, robot, params, start);
+    let mut odo = setup.odometer(params, start);
     if let Some(sc) = &scales {
         odo = odo.with_scales(sc);
     }
-    let poses = pass(tub, records, camera, opts, flat, &mut odo, &mut warnings)?;
+    let poses = pass(
+        tub,
+        records,
+        setup.camera,
+        opts,
+        flat,
+        &mut odo,
+        &mut warnings,
+    )?;
     Ok(Estimate {
         poses,
         scales,
+        car: odo.car_params(),
+        masked_pixels: setup.mask.map(PixelMask::count),
         scatter,
         prior_weight: params.fusion.prior_weight,
         warnings,
@@ -397,7 +596,7 @@ fn pass(
             // every n-th frame the skipped records' commands still drive the prior.
             let prev = records[i - 1];
             let dt = rec.timestamp_ms.saturating_sub(prev.timestamp_ms) as f32 / 1000.0;
-            odo.drive(record_wheels(prev), dt);
+            odo.drive(record_command(prev), dt);
         }
         if i % every != 0 {
             continue;
@@ -506,17 +705,22 @@ mod tests {
         let mut robot = RobotParams::default();
         robot.motor.time_constant_s = 0.0;
         robot.motor.dead_band = 0.0;
-        let mut odo = Odometer::new(&cam, robot, OdometryParams::default(), Pose2::default());
+        let mut odo = Odometer::new(
+            &cam,
+            Vehicle::Wheels(robot),
+            OdometryParams::default(),
+            Pose2::default(),
+        );
         let grey = vec![100u8; 224 * 224 * 3];
         let (_, c, s) = odo.see(Some((&grey, 224, 224)));
         assert_eq!((c, s), (0.0, Source::Prior(fuse::Fallback::Textureless)));
         // 0.4 duty on both wheels for 0.1 s: 0.5 * 0.4 * 0.1 = 0.02 m straight ahead.
-        odo.drive((0.4, 0.4), 0.1);
+        odo.drive(Command::Wheels(0.4, 0.4), 0.1);
         let (p, c, s) = odo.see(Some((&grey, 224, 224)));
         assert_eq!((c, s), (0.0, Source::Prior(fuse::Fallback::Textureless)));
         assert!((p.x - 0.02).abs() < 1e-5 && p.y.abs() < 1e-6, "{p:?}");
         // A missing image too.
-        odo.drive((0.4, 0.4), 0.1);
+        odo.drive(Command::Wheels(0.4, 0.4), 0.1);
         let (p, _, s) = odo.see(None);
         assert_eq!(s, Source::Prior(fuse::Fallback::Textureless));
         assert!((p.x - 0.04).abs() < 1e-5);
