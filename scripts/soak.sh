@@ -125,7 +125,7 @@ awk -F, 'NR > 1 { n++; row[n] = $0 } END {
     a = part ? n - k + 1 : 2; b = part ? n : 1 + k
     rss = fds = th = fps = im = 0; m = 0
     for (i = a; i <= b; i++) { split(row[i], v, ","); rss += v[2]; fds += v[3]; th += v[4]; fps += v[8]; im += v[10]; m++ }
-    printf "%s tenth (%d samples): RSS %.1f MB, %.0f fds, %.0f threads, %.0f frames/s, inference %.2f ms\n",
+    printf "%s tenth (%d samples): RSS %.1f MiB, %.0f fds, %.0f threads, %.0f frames/s, inference %.2f ms\n",
       part ? "last " : "first", m, rss / m / 1024, fds / m, th / m, fps / m, im / m
   }
   split(row[n], v, ",")
