@@ -656,4 +656,35 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn the_holders_flood_writes_the_motors_at_most_every_20_ms() {
+        let (mut t, _) = teleop();
+        assert!(t.on_remote(&web(1, drive(1.0, 0.0)), ms(0)).is_some());
+        // Heartbeats and gains from the holder write nothing (the control tick feeds the
+        // motors); they still keep the hold.
+        assert_eq!(t.on_remote(&web(1, RemoteRequest::Heartbeat), ms(1)), None);
+        assert_eq!(
+            t.on_remote(
+                &web(1, RemoteRequest::Gains(SteeringGains::default())),
+                ms(2)
+            ),
+            None
+        );
+        // 1001 drive messages from 20 to 120 ms: a write every 20 ms after the first, no more.
+        let written: Vec<u64> = (0..=1000u64)
+            .filter_map(|i| {
+                let at = ms(0) + Duration::from_micros(i * 100);
+                t.on_remote(&web(1, drive(1.0, 0.2)), at + ms(20))
+                    .map(|_| (at + ms(20)).as_millis() as u64)
+            })
+            .collect();
+        assert_eq!(written, vec![20, 40, 60, 80, 100, 120]);
+        // The sticks not written at once are the tick's: the latest ones.
+        assert_eq!(
+            t.poll(ms(125)),
+            Some(Drive::Command(WheelCommand::new(0.55, 0.45)))
+        );
+        assert_eq!(t.remote_holder(), Some(1));
+    }
 }

@@ -142,18 +142,14 @@ impl CameraModel {
     /// calibration then absorbs it), a wrong tilt bends the floor.
     pub fn donkeycar(width: u32, height: u32) -> Self {
         Self {
-            width,
-            height,
-            lens: LensKind::Fisheye,
-            hfov_deg: 120.0,
-            fisheye_fov_deg: 160.0,
-            fisheye_k: [0.0; 4],
             // The sensor's 4:3 (the frame is not rescaled at 160x120); set rather than left
             // unset so a config file can spell it out.
             capture_aspect: Some(4.0 / 3.0),
             height_m: 0.15,
             tilt_deg: 20.0,
             forward_m: 0.08,
+            // JetBot's lens otherwise: a 160 degree equidistant fisheye.
+            ..Self::jetbot(width, height)
         }
     }
 
