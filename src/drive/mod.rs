@@ -121,6 +121,8 @@ pub struct DaemonStatus {
     pub recording: bool,
     /// Records written by the recorder so far.
     pub records: u64,
+    /// Why recording stopped by itself (a full disk, the record limit), if it did.
+    pub record_error: Option<String>,
     /// The web client holding the controls.
     pub remote_holder: Option<remote::ClientId>,
     pub frames_captured: u64,
@@ -602,6 +604,7 @@ impl Actuator<'_> {
                 ),
                 None => ("auto".to_string(), 0, self.gains, (false, 0), true, None),
             };
+        let record_error = self.teleop.as_ref().and_then(|t| t.record_error());
         let (then, then_cmds, then_h) = self.published;
         let autopilot_cmds = self.histograms.inference.count;
         let dt = now.saturating_sub(then).as_secs_f32();
@@ -640,6 +643,7 @@ impl Actuator<'_> {
             autopilot_available,
             recording,
             records,
+            record_error,
             remote_holder: holder,
             frames_captured: counts.produced,
             frames_skipped: counts.skipped,

@@ -88,6 +88,25 @@ pub struct RecorderCounts {
     pub dropped: AtomicU64,
     /// Set when recording stopped by itself (limit reached or write error).
     pub stopped: AtomicBool,
+    /// Why recording stopped by itself, for the log and the web page.
+    reason: std::sync::Mutex<Option<String>>,
+}
+
+impl RecorderCounts {
+    /// Why recording stopped by itself (`None` while it goes on, or after a normal end).
+    pub fn stop_reason(&self) -> Option<String> {
+        self.reason.lock().ok().and_then(|r| r.clone())
+    }
+
+    /// Stops recording for `reason`; the first reason is kept.
+    fn stop(&self, reason: String) {
+        if let Ok(mut r) = self.reason.lock()
+            && r.is_none()
+        {
+            *r = Some(reason);
+        }
+        self.stopped.store(true, Ordering::Relaxed);
+    }
 }
 
 pub struct Recorder {
@@ -200,7 +219,9 @@ fn write_loop(
         }
         if counts.written.load(Ordering::Relaxed) >= max_records {
             tracing::warn!(max_records, "recording limit reached: recording stopped");
-            counts.stopped.store(true, Ordering::Relaxed);
+            counts.stop(format!(
+                "the limit of {max_records} records (record.max_records) is reached"
+            ));
             continue;
         }
         if let Err(e) = crate::dataset::encode_jpeg(&step.rgb, step.width, step.height, &mut jpeg) {
@@ -223,7 +244,7 @@ fn write_loop(
             let uuid = crate::dataset::jetbot_xy::uuid_from_rng(&mut rng);
             if let Err(e) = crate::dataset::jetbot_xy::write_sample(dir, px, py, &jpeg, &uuid) {
                 tracing::error!(error = %e, "recording stopped (disk full?); what was written is kept");
-                counts.stopped.store(true, Ordering::Relaxed);
+                counts.stop(format!("{e}; what was written is kept"));
                 continue;
             }
         }
@@ -238,7 +259,7 @@ fn write_loop(
             }
             Err(e) => {
                 tracing::error!(error = %e, "recording stopped (disk full?); what was written is kept");
-                counts.stopped.store(true, Ordering::Relaxed);
+                counts.stop(format!("{e}; what was written is kept"));
             }
         }
     }
@@ -376,6 +397,9 @@ mod tests {
         }
         assert!(offered >= 7);
         assert!(rec.counts().stopped.load(Ordering::Relaxed));
+        let why = rec.counts().stop_reason().expect("a reason");
+        assert!(why.contains("images/"), "{why}");
+        assert!(why.contains("No space left on device"), "{why}");
         assert_eq!(rec.finish(), 7);
         assert_eq!(TubReader::open(dir.path()).unwrap().records().count(), 7);
     }
@@ -389,6 +413,16 @@ mod tests {
             rec.offer(step(i));
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
+        // The writer sees the 6th step after the loop on a slow machine: wait for it.
+        let t0 = std::time::Instant::now();
+        while !rec.counts().stopped.load(Ordering::Relaxed) && t0.elapsed().as_secs() < 10 {
+            rec.offer(step(99));
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert_eq!(
+            rec.counts().stop_reason().as_deref(),
+            Some("the limit of 5 records (record.max_records) is reached")
+        );
         assert_eq!(rec.finish(), 5);
     }
 }

@@ -112,14 +112,24 @@ impl Teleop {
         self.modes.gains()
     }
 
-    /// Recording now, and records written so far.
+    /// Recording now, and records written so far. A recorder that stopped by itself (a
+    /// full disk, its limit) is not recording, whatever was pressed.
     pub fn recording(&self) -> (bool, u64) {
-        let written = self.recorder.as_ref().map_or(0, |r| {
-            r.counts()
-                .written
-                .load(std::sync::atomic::Ordering::Relaxed)
+        let (written, stopped) = self.recorder.as_ref().map_or((0, false), |r| {
+            let c = r.counts();
+            (
+                c.written.load(std::sync::atomic::Ordering::Relaxed),
+                c.stopped.load(std::sync::atomic::Ordering::Relaxed),
+            )
         });
-        (self.recording, written)
+        (self.recording && !stopped, written)
+    }
+
+    /// Why recording stopped by itself, if it did: the page shows it.
+    pub fn record_error(&self) -> Option<String> {
+        self.recorder
+            .as_ref()
+            .and_then(|r| r.counts().stop_reason())
     }
 
     pub fn autopilot_available(&self) -> bool {
@@ -635,6 +645,61 @@ mod tests {
         // Record without a recorder: stays off.
         t.on_remote(&web(1, RemoteRequest::Record(true)), ms(1000));
         assert_eq!(t.recording(), (false, 0));
+    }
+
+    /// A tub on a full card: every append fails with ENOSPC.
+    struct FullCard;
+    impl super::super::recorder::EpisodeSink for FullCard {
+        fn append(
+            &mut self,
+            _: &crate::dataset::tub::TubRecord,
+            _: &[u8],
+        ) -> Result<u64, crate::dataset::DatasetError> {
+            Err(crate::dataset::DatasetError::Io {
+                path: "/media/sd/tub/images/0_cam_image_array_.jpg".into(),
+                source: std::io::Error::from_raw_os_error(28),
+            })
+        }
+        fn sync(&mut self) -> Result<(), crate::dataset::DatasetError> {
+            Ok(())
+        }
+        fn delete_last(&mut self, _: usize) -> Result<usize, crate::dataset::DatasetError> {
+            Ok(0)
+        }
+    }
+
+    #[test]
+    fn a_full_disk_ends_recording_and_says_why() {
+        let (mut t, _) = teleop();
+        t.recorder = Some(Recorder::start(Box::new(FullCard), 1000, None).unwrap());
+        t.on_remote(&web(1, RemoteRequest::Record(true)), ms(0));
+        assert_eq!(t.recording(), (true, 0));
+        assert_eq!(t.record_error(), None);
+        let cmd = Command {
+            seq: 1,
+            captured_at: ms(10),
+            frame: std::sync::Arc::new(vec![0; 8 * 8 * 3]),
+            width: 8,
+            height: 8,
+            outputs: [0.0, 0.0],
+            wheels: WheelCommand::new(0.2, 0.2),
+            preprocess: Duration::ZERO,
+            inference: Duration::ZERO,
+            control: Duration::ZERO,
+        };
+        t.record(&cmd, WheelCommand::new(0.2, 0.2));
+        let t0 = std::time::Instant::now();
+        while t.record_error().is_none() && t0.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(ms(2));
+        }
+        // Pressed, but stopped: the page shows "not recording" and the reason.
+        assert_eq!(t.recording(), (false, 0));
+        let why = t.record_error().unwrap();
+        assert!(
+            why.starts_with("/media/sd/tub/images/0_cam_image_array_.jpg: No space left on device"),
+            "{why}"
+        );
+        assert!(why.ends_with("what was written is kept"), "{why}");
     }
 
     #[test]

@@ -235,6 +235,8 @@ pub struct StatusView {
     pub autonomy: Option<f32>,
     pub recording: bool,
     pub records: u64,
+    /// Why recording stopped by itself (a full disk, the record limit), if it did.
+    pub record_error: Option<String>,
     pub gains: SteeringGains,
     pub wheels: [f32; 2],
     /// preprocess, inference, control, actuate, frame age: mean ms over the last status period.
@@ -267,6 +269,7 @@ impl StatusView {
             autonomy,
             recording: s.recording,
             records: s.records,
+            record_error: s.record_error.clone(),
             gains: s.gains,
             wheels: [s.last.left, s.last.right],
             latency_ms: s.recent_ms,

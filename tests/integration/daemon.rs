@@ -171,6 +171,13 @@ fn a_stalled_camera_stops_the_motors_within_the_watchdog_period() {
     assert_eq!(report.watchdog_stops, 1);
     assert_eq!(drives(&record).len(), 5);
     let gap = stop_after_last_drive(&record);
+    // The watchdog stops a stalled camera at the end of its period: the time past it.
+    common::record_fault_time(
+        "stalled_camera_past_watchdog",
+        0,
+        Duration::ZERO,
+        Some(gap.saturating_sub(WATCHDOG)),
+    );
     assert!(
         gap >= WATCHDOG && gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"
@@ -180,6 +187,7 @@ fn a_stalled_camera_stops_the_motors_within_the_watchdog_period() {
 /// Runs a fault scenario and checks: the run ends with the fault, and the motors were
 /// stopped within the watchdog period of the last command.
 fn assert_fault_stops(
+    kind: &str,
     source: ScriptedSource,
     policy: ScriptedPolicy,
     expect: impl Fn(&DriveError) -> bool,
@@ -194,6 +202,7 @@ fn assert_fault_stops(
     let (err, _) = outcome.expect_err("the fault ends the run");
     assert!(expect(&err), "unexpected error: {err}");
     let gap = stop_after_last_drive(&record);
+    common::record_fault_time(kind, 0, Duration::ZERO, Some(gap));
     assert!(
         gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"
@@ -216,7 +225,7 @@ fn a_nan_model_output_stops_the_motors() {
     // The policy's fourth call sees frame 3 unless the daemon dropped a stale frame
     // (latest frame wins when inference lags, as on a loaded CI machine): then it is a
     // later frame. Either way the first NaN ends the run.
-    assert_fault_stops(source(20, false), policy, |e| {
+    assert_fault_stops("nan_output", source(20, false), policy, |e| {
         matches!(e, DriveError::BadOutput { seq, .. } if *seq >= 3) && e.to_string().contains("NaN")
     });
 }
@@ -224,7 +233,7 @@ fn a_nan_model_output_stops_the_motors() {
 #[test]
 fn an_out_of_range_model_output_stops_the_motors() {
     let policy = ScriptedPolicy::new(|n| Step::Out(if n < 2 { [0.1, 0.2] } else { [0.1, 1e9] }));
-    assert_fault_stops(source(20, false), policy, |e| {
+    assert_fault_stops("out_of_range_output", source(20, false), policy, |e| {
         matches!(e, DriveError::BadOutput { .. }) && e.to_string().contains("max_abs_output")
     });
 }
@@ -238,7 +247,7 @@ fn an_inference_error_stops_the_motors() {
             Step::Fail("device lost")
         }
     });
-    assert_fault_stops(source(20, false), policy, |e| {
+    assert_fault_stops("inference_error", source(20, false), policy, |e| {
         matches!(e, DriveError::Policy(_)) && e.to_string().contains("device lost")
     });
 }
@@ -252,7 +261,7 @@ fn a_panicking_model_stops_the_motors() {
             Step::Panic
         }
     });
-    assert_fault_stops(source(20, false), policy, |e| {
+    assert_fault_stops("model_panic", source(20, false), policy, |e| {
         matches!(e, DriveError::StageDied("inference"))
     });
 }
@@ -261,6 +270,7 @@ fn a_panicking_model_stops_the_motors() {
 fn a_frame_source_error_stops_the_motors() {
     let policy = ScriptedPolicy::new(|_| Step::Out([0.1, 0.2]));
     assert_fault_stops(
+        "camera_error",
         source(4, true),
         policy,
         |e| matches!(e, DriveError::Camera(m) if m.contains("unplugged")),
@@ -315,6 +325,61 @@ fn an_i2c_error_stops_the_motors() {
     assert_eq!(regs, vec![0x28, 0x2C, 0x30, 0x34, 0x38, 0x3C]);
     assert!(tail.iter().all(|b| b[1..] == [0x00, 0x10]));
     assert!(writes.iter().rev().take(6).all(|(_, _, failed)| !failed));
+}
+
+#[test]
+fn one_i2c_error_is_retried_and_driving_goes_on() {
+    // One failed transaction (a glitch on the bus): the retry writes it again, no fault,
+    // every command reaches the chip and the run ends normally, stopped.
+    let bus = FlakyBus::default();
+    let hat = MotorHat::init(
+        bus.clone(),
+        HatSettings::for_layout(HatLayout::Adafruit),
+        &mut NoopDelay,
+    )
+    .unwrap();
+    let init_writes = bus.writes.lock().unwrap().len();
+    *bus.fail.lock().unwrap() = init_writes + 10..init_writes + 11;
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
+    // 20 frames, then the source stalls until released (the watchdog stops the motors).
+    let frames = source(20, false);
+    let release = frames.release.clone();
+    let parts = Parts {
+        source: Box::new(frames),
+        policy: Box::new(ScriptedPolicy::new(|n| {
+            Step::Out(if n % 2 == 0 { [0.3, 0.2] } else { [-0.3, 0.2] })
+        })),
+        motors: Box::new(hat) as Box<dyn MotorOutput>,
+        clock,
+        teleop: None,
+        status: None,
+        live: None,
+    };
+    let outcome = block_on(async {
+        drive::run(
+            parts,
+            params(gains()),
+            tokio::time::sleep(Duration::from_secs(1)),
+        )
+        .await
+    });
+    release.store(true, Ordering::Relaxed);
+    let (end, report) = outcome.expect("one I2C error is retried, not a fault");
+    assert_eq!(end, RunEnd::Shutdown);
+    assert!(report.commands_written >= 15, "{report}");
+    let writes = bus.writes.lock().unwrap();
+    let failed: Vec<usize> = (0..writes.len()).filter(|&i| writes[i].2).collect();
+    assert_eq!(failed, vec![init_writes + 10]);
+    // The failed transaction was written again at once: the same bytes, next.
+    assert_eq!(writes[init_writes + 10].1, writes[init_writes + 11].1);
+    // It ends released: the last six writes set the full-off bit of every motor channel.
+    assert!(
+        writes
+            .iter()
+            .rev()
+            .take(6)
+            .all(|(_, b, _)| b[1..] == [0x00, 0x10])
+    );
 }
 
 /// Fails (recoverably, like an unplugged USB camera) after `fail_at` frames, `failures`
@@ -377,6 +442,18 @@ fn an_unplugged_camera_stops_the_motors_then_driving_resumes() {
         .iter()
         .position(|(_, e)| *e == MotorEvent::Stop)
         .expect("a stop");
+    // The camera takes 100 ms to fail (FlakyCamera): time the stop from its error.
+    let gap = events[first_stop].0 - events[first_stop - 1].0;
+    common::record_fault_time(
+        "camera_unplugged",
+        0,
+        Duration::ZERO,
+        Some(gap.saturating_sub(Duration::from_millis(100))),
+    );
+    assert!(
+        gap <= WATCHDOG + SLACK,
+        "stop {gap:?} after the last command"
+    );
     assert_eq!(
         events[..first_stop]
             .iter()

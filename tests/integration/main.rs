@@ -22,6 +22,7 @@ mod interventions_kill;
 mod poses;
 mod pretrained;
 mod probe;
+mod process_faults;
 mod providers;
 mod quantize;
 mod score;

@@ -201,3 +201,25 @@ pub fn load_ort(path: &Path) -> OrtPolicy {
 pub fn try_load_ort(path: &Path) -> Result<OrtPolicy, PolicyError> {
     OrtPolicy::load(path, &OrtOptions::cpu(1, false, &ModelContract::default()))
 }
+
+/// With `JETPILOT_FAULT_TIMES=FILE` (set by `scripts/faults-under-load.sh`), appends one
+/// fault round, `kind,round,delay_ms,stop_ms,drove`, for the script's summary.
+pub fn record_fault_time(kind: &str, round: usize, delay: Duration, stop: Option<Duration>) {
+    use std::io::Write;
+    let Some(path) = std::env::var_os("JETPILOT_FAULT_TIMES") else {
+        return;
+    };
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .expect("open JETPILOT_FAULT_TIMES");
+    writeln!(
+        f,
+        "{kind},{round},{},{:.3},{}",
+        delay.as_millis(),
+        stop.map_or(0.0, |d| d.as_secs_f64() * 1e3),
+        stop.is_some()
+    )
+    .expect("append to JETPILOT_FAULT_TIMES");
+}
