@@ -15,7 +15,8 @@
 #   model, one I2C error and a burst of them), and the full-disk recording tests, ROUNDS
 #   times over (at most 10).
 # Each test asserts its own outcome (motors stopped, the right error, the tub readable);
-# each round's stop time goes to OUT/times.csv (kind,round,delay_ms,stop_ms,drove), and
+# each round's stop time goes to OUT/times.csv (kind,round,delay_ms,stop_ms,drove,
+# last_drive_ms: the process rounds also time the last drive command from the fault), and
 # the summary (OUT/summary.txt) gives the worst per kind. Exit status 1 when a test
 # failed or a stop took longer than the watchdog period (250 ms, the shipped default; the
 # in-process tests run with 200 ms). A stalled camera is stopped by the watchdog itself,
@@ -41,10 +42,13 @@ if ! command -v stress-ng > /dev/null && [ "$(id -u)" -eq 0 ]; then
 fi
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
-rm -f "$OUT/times.csv"
+rm -f "$OUT/times.csv" "$OUT"/in-process-*.log
 
-# Build before loading the machine.
+# Build before loading the machine: the tests, and the release binary that the process
+# rounds run (the robot's build; the 250 MB debug binary starts far slower under disk load).
 cargo nextest run --all-features --test integration --lib --no-run --locked
+cargo build --release --locked
+export JETPILOT_BIN="$PWD/target/release/jetpilot"
 
 LOAD_DIR=$(mktemp -d)
 LOAD=()
@@ -82,21 +86,25 @@ IN_PROCESS='test(/^daemon::.*(stops_the_motors|i2c_error)/) | test(/full_disk/)'
 REPEAT=$(( ROUNDS < 10 ? ROUNDS : 10 ))
 for i in $(seq "$REPEAT"); do
   if ! cargo nextest run --all-features --test integration --lib --locked --no-fail-fast \
-    -E "$IN_PROCESS" > "$OUT/in-process.log" 2>&1; then
-    echo "faults-under-load: a fault test failed (pass $i of $REPEAT): $OUT/in-process.log" >&2
+    -E "$IN_PROCESS" > "$OUT/in-process-$i.log" 2>&1; then
+    echo "faults-under-load: a fault test failed (pass $i of $REPEAT): $OUT/in-process-$i.log" >&2
+    grep -E '^ *FAIL' "$OUT/in-process-$i.log" >&2 || true
     status=1
   fi
-  grep -E '^ *Summary' "$OUT/in-process.log" || true
+  grep -E '^ *Summary' "$OUT/in-process-$i.log" || true
 done
 stop_load
 trap - EXIT
 
 awk -F, -v wd="$WATCHDOG_MS" -v desc="$LOAD_DESC" '
-  { n[$1]++; if ($5 == "true") { d[$1]++; v = $4 + 0; if (v > w[$1]) w[$1] = v; s[$1] += v; if (v > worst) { worst = v; wk = $1 } } }
+  { n[$1]++
+    if ($5 == "true") { d[$1]++; v = $4 + 0; if (v > w[$1]) w[$1] = v; s[$1] += v; if (v > worst) { worst = v; wk = $1 } }
+    if ($6 != "") { l = $6 + 0; if (!($1 in ld) || l > ld[$1]) ld[$1] = l } }
   END {
     printf "under %s\n", desc
-    printf "%-20s %7s %7s %10s %10s\n", "fault", "rounds", "drove", "mean ms", "worst ms"
-    for (k in n) printf "%-20s %7d %7d %10.1f %10.1f\n", k, n[k], d[k], d[k] ? s[k] / d[k] : 0, w[k]
+    printf "%-30s %6s %6s %9s %9s %16s\n", "fault", "rounds", "drove", "mean ms", "worst ms", "last drive ms"
+    for (k in n) printf "%-30s %6d %6d %9.1f %9.1f %16s\n", k, n[k], d[k], d[k] ? s[k] / d[k] : 0, w[k], (k in ld) ? sprintf("%.1f", ld[k]) : "-"
+    print "(times from the fault; last drive: the latest drive command after the fault, worst round)"
     printf "worst stop: %.1f ms (%s); watchdog period %d ms\n", worst, wk, wd
     if (worst > wd) { print "FAIL: a stop took longer than the watchdog period"; exit 1 }
   }' "$OUT/times.csv" | tee "$OUT/summary.txt" || status=1

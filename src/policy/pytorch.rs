@@ -133,6 +133,47 @@ pub fn imagenet_weights(arch: Arch) -> Result<std::path::PathBuf, PytorchError> 
     })
 }
 
+/// Most outputs an imported head may have. The head is the one tensor whose size the file
+/// chooses; this bounds what a file can make the import read (ResNet-18: 64 MiB, Lite0:
+/// 160 MiB). ImageNet's 1000 and ImageNet-21k's 21,843 fit.
+pub const MAX_HEAD_OUTPUTS: usize = 32_768;
+
+/// Largest `data.pkl` taken from a ZIP checkpoint. A state dict's pickle is one short record
+/// per tensor (tens of KB); the reader allows 100 MiB, and its unpickler holds about 90
+/// bytes per pickle byte (a 16 KB deflated file of NONE opcodes took 1.5 GB), so the size
+/// is checked before the pickle is parsed. A legacy (non-ZIP) file is not covered.
+pub const MAX_PICKLE_BYTES: u64 = 4 << 20;
+
+/// Refuses a ZIP checkpoint whose `data.pkl` declares more than [`MAX_PICKLE_BYTES`] (the
+/// reader reads no more of an entry than it declares). Anything that is not a ZIP is left
+/// to the reader to judge.
+fn check_zip_pickle(path: &Path, shown: &str) -> Result<(), PytorchError> {
+    let Ok(file) = std::fs::File::open(path) else {
+        return Ok(());
+    };
+    let Ok(mut zip) = zip::ZipArchive::new(std::io::BufReader::new(file)) else {
+        return Ok(());
+    };
+    for i in 0..zip.len() {
+        let Ok(entry) = zip.by_index_raw(i) else {
+            continue;
+        };
+        let Ok(name) = entry.name() else {
+            continue;
+        };
+        if (name == "data.pkl" || name.ends_with("/data.pkl")) && entry.size() > MAX_PICKLE_BYTES {
+            return Err(PytorchError::NotPytorch {
+                path: shown.to_string(),
+                reason: format!(
+                    "{name} is {} bytes, above the {MAX_PICKLE_BYTES} a state dict's pickle needs",
+                    entry.size()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Reads `arch`'s tensors from the state dict at `path`. The output layer may have any
 /// number of outputs (an ImageNet classifier has 1000); every other tensor must have the
 /// architecture's shape.
@@ -143,6 +184,7 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
         path: shown.clone(),
         source,
     })?;
+    check_zip_pickle(path, &shown)?;
     let reader = PytorchReader::new(path).map_err(|e| PytorchError::NotPytorch {
         path: shown.clone(),
         reason: e.to_string(),
@@ -168,6 +210,21 @@ pub fn read_state_dict(path: &Path, arch: Arch) -> Result<NetWeights, PytorchErr
             },
         });
     };
+    // The head's size is the file's choice: bounded before anything is read.
+    for part in ["weight", "bias"] {
+        let key = format!("{prefix}{}.{part}", arch.head());
+        if let Some(t) = tensors.get(&key)
+            && t.shape().first().is_some_and(|&n| n > MAX_HEAD_OUTPUTS)
+        {
+            let dims: Vec<i64> = t.shape().iter().map(|&d| d as i64).collect();
+            return Err(PytorchError::Shape {
+                path: shown,
+                name: key,
+                expected: format!("at most {MAX_HEAD_OUTPUTS} outputs"),
+                found: shape_to_string(&dims),
+            });
+        }
+    }
     let head_weight = format!("{}.weight", arch.head());
     let mut out = TensorMap::new();
     for (name, expected) in shapes {

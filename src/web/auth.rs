@@ -134,6 +134,24 @@ mod tests {
     use axum::http::HeaderValue;
 
     #[test]
+    fn a_new_token_folder_is_private_and_tokens_are_random() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a/b/web-token");
+        let (t1, made) = load_or_create(&path).unwrap();
+        assert!(made && t1.len() == 64 && t1.chars().all(|c| c.is_ascii_hexdigit()));
+        for d in [dir.path().join("a"), dir.path().join("a/b")] {
+            let mode = std::fs::metadata(&d).unwrap().permissions().mode() & 0o777;
+            assert_eq!(mode, 0o700, "{}", d.display());
+        }
+        // The OS's random source, not a constant.
+        let (t2, _) = load_or_create(&dir.path().join("c/web-token")).unwrap();
+        assert_ne!(t1, t2);
+        // A file holding anything but letters and digits is refused, not sent as a token.
+        std::fs::write(&path, "0123456789abcdef0123456789abcdef; x=1\n").unwrap();
+        assert!(load_or_create(&path).is_err());
+    }
+
+    #[test]
     fn a_token_is_made_once_private_and_then_reused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("state/web-token");

@@ -81,13 +81,54 @@ pub fn router(state: AppState) -> Router {
         .route("/login", get(login_page).post(login))
         .merge(protected)
         .layer(middleware::from_fn_with_state(state.clone(), same_origin))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            close_unless_authorised,
+        ))
         .layer(
             tower_http::set_header::SetResponseHeaderLayer::if_not_present(
                 header::CACHE_CONTROL,
                 HeaderValue::from_static("no-store"),
             ),
         )
+        // No other site may frame the page (clickjacking its buttons), nor sniff types.
+        .layer(
+            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+                header::X_FRAME_OPTIONS,
+                HeaderValue::from_static("DENY"),
+            ),
+        )
+        .layer(
+            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+                header::CONTENT_SECURITY_POLICY,
+                HeaderValue::from_static("frame-ancestors 'none'"),
+            ),
+        )
+        .layer(
+            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+                header::X_CONTENT_TYPE_OPTIONS,
+                HeaderValue::from_static("nosniff"),
+            ),
+        )
         .with_state(state)
+}
+
+/// Answers a request that does not carry the right token (the login page, a 401, a 403,
+/// a 404), then closes its connection (`Connection: close`; hyper closes after such a
+/// response). With keep-alive, a client that never had the token could hold one of
+/// `web.max_connections` for as long as it asked again within `web.idle_timeout_ms`.
+async fn close_unless_authorised(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    let authorised = match s.token.as_deref() {
+        None => true,
+        Some(expected) => auth::presented(req.headers(), req.uri().query())
+            .is_some_and(|g| auth::same(&g, expected)),
+    };
+    let mut r = next.run(req).await;
+    if !authorised {
+        r.headers_mut()
+            .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    }
+    r
 }
 
 /// Refuses requests another site's page could make through the user's browser:
@@ -665,6 +706,89 @@ fn undo_label(labels: &Labeller, mine: &PageSamples) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cross_site_requests_are_refused_with_or_without_a_token() {
+        use axum::http::HeaderMap;
+        let h = |host: Option<&'static str>, origin: Option<&'static str>| {
+            let mut m = HeaderMap::new();
+            if let Some(v) = host {
+                m.insert(header::HOST, HeaderValue::from_static(v));
+            }
+            if let Some(v) = origin {
+                m.insert(header::ORIGIN, HeaderValue::from_static(v));
+            }
+            m
+        };
+        let robot = Some("192.168.1.5:8887");
+        // With a token: any Host; an Origin, when sent, must be the page's own.
+        assert_eq!(cross_site(false, &h(robot, None)), None);
+        assert_eq!(
+            cross_site(false, &h(robot, Some("http://192.168.1.5:8887"))),
+            None
+        );
+        assert_eq!(
+            cross_site(
+                false,
+                &h(Some("jetbot.local:8887"), Some("https://JETBOT.local:8887"))
+            ),
+            None
+        );
+        for origin in [
+            "http://evil.example",
+            "http://192.168.1.5:8888",
+            "http://192.168.1.5:8887.evil.example",
+            "null",
+            "file://",
+            "ws://192.168.1.5:8887",
+        ] {
+            assert!(
+                cross_site(false, &h(robot, Some(origin))).is_some(),
+                "{origin}"
+            );
+        }
+        assert!(cross_site(false, &h(None, Some("http://192.168.1.5:8887"))).is_some());
+        // Without a token: a loopback Host, whatever the Origin.
+        assert_eq!(cross_site(true, &h(Some("127.0.0.1:8887"), None)), None);
+        assert_eq!(
+            cross_site(
+                true,
+                &h(Some("localhost:8887"), Some("http://localhost:8887"))
+            ),
+            None
+        );
+        for host in [
+            None,
+            Some("evil.example:8887"),
+            Some("127.0.0.1.nip.io:8887"),
+            robot,
+        ] {
+            assert!(cross_site(true, &h(host, None)).is_some(), "{host:?}");
+        }
+        // DNS rebinding: the attacker's page is same-origin with itself, but its Host is
+        // not loopback.
+        assert!(
+            cross_site(
+                true,
+                &h(Some("evil.example:8887"), Some("http://evil.example:8887"))
+            )
+            .is_some()
+        );
+    }
+
+    #[test]
+    fn the_pages_build_no_markup_from_data() {
+        for (name, page) in [("index.html", INDEX), ("login.html", LOGIN)] {
+            for sink in [
+                "innerHTML",
+                "outerHTML",
+                "insertAdjacentHTML",
+                "document.write",
+            ] {
+                assert!(!page.contains(sink), "{name} uses {sink}");
+            }
+        }
+    }
 
     #[test]
     fn client_messages_parse_and_bad_ones_are_named() {

@@ -176,8 +176,7 @@ fn a_stalled_camera_stops_the_motors_within_the_watchdog_period() {
         "stalled_camera_past_watchdog",
         0,
         Duration::ZERO,
-        Some(gap.saturating_sub(WATCHDOG)),
-    );
+        Some(gap.saturating_sub(WATCHDOG)), None);
     assert!(
         gap >= WATCHDOG && gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"
@@ -202,7 +201,7 @@ fn assert_fault_stops(
     let (err, _) = outcome.expect_err("the fault ends the run");
     assert!(expect(&err), "unexpected error: {err}");
     let gap = stop_after_last_drive(&record);
-    common::record_fault_time(kind, 0, Duration::ZERO, Some(gap));
+    common::record_fault_time(kind, 0, Duration::ZERO, Some(gap), None);
     assert!(
         gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"
@@ -448,8 +447,7 @@ fn an_unplugged_camera_stops_the_motors_then_driving_resumes() {
         "camera_unplugged",
         0,
         Duration::ZERO,
-        Some(gap.saturating_sub(Duration::from_millis(100))),
-    );
+        Some(gap.saturating_sub(Duration::from_millis(100))), None);
     assert!(
         gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"

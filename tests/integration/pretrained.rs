@@ -341,3 +341,85 @@ fn the_real_file_truncated_is_refused_with_the_storage_that_runs_past_its_end() 
         "{err}"
     );
 }
+
+#[test]
+fn a_pickle_that_calls_os_system_or_eval_runs_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let marker = dir.path().join("ran");
+    let cmd = format!("touch {}", marker.display());
+    let u = |s: &str| {
+        let mut v = vec![b'X']; // BINUNICODE
+        v.extend_from_slice(&(s.len() as u32).to_le_bytes());
+        v.extend_from_slice(s.as_bytes());
+        v
+    };
+    // {"evil": os.system(cmd)}: GLOBAL, REDUCE.
+    let mut system = b"\x80\x02}".to_vec();
+    system.extend(u("evil"));
+    system.extend_from_slice(b"cos\nsystem\n(");
+    system.extend(u(&cmd));
+    system.extend_from_slice(b"tRs.");
+    // {"evil": builtins.eval(...)}: STACK_GLOBAL, REDUCE (protocol 4).
+    let mut eval = b"\x80\x04}".to_vec();
+    eval.extend(u("evil"));
+    eval.extend(u("builtins"));
+    eval.extend(u("eval"));
+    eval.extend_from_slice(b"\x93(");
+    eval.extend(u(&format!("__import__('os').system('{cmd}')")));
+    eval.extend_from_slice(b"tRs.");
+    // {"evil": NEWOBJ of os.system, then BUILD with a state dict}.
+    let mut build = b"\x80\x02}".to_vec();
+    build.extend(u("evil"));
+    build.extend_from_slice(b"cos\nsystem\n)\x81}");
+    build.extend(u("cmd"));
+    build.extend(u(&cmd));
+    build.extend_from_slice(b"sbs.");
+    for (name, pkl) in [("system", system), ("eval", eval), ("build", build)] {
+        let file = dir.path().join(format!("{name}.pth"));
+        pth::write_pickle_zip(&file, &pkl);
+        let err = import_error(&file, Arch::Resnet18);
+        assert!(err.contains("the file holds no tensors"), "{name}: {err}");
+        assert!(!marker.exists(), "{name}: the pickle ran a command");
+    }
+}
+
+#[test]
+fn a_head_above_max_head_outputs_is_refused_before_it_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("huge-head.pth");
+    // The whole torchvision dict, but a head declaring 2^20 outputs (2 GiB of f32) with no
+    // bytes behind them.
+    let w = Resnet18Weights::random(2, 1);
+    let mut dict = torchvision_dict(&w, "");
+    dict.retain(|(n, _, _)| !n.starts_with("fc."));
+    dict.push((
+        "fc.weight".into(),
+        vec![1 << 20, 512],
+        Values::Declared((1 << 20) * 512),
+    ));
+    dict.push(("fc.bias".into(), vec![1 << 20], Values::Declared(1 << 20)));
+    write_state_dict(&file, &dict);
+    let err = import_error(&file, Arch::Resnet18);
+    assert!(
+        err.contains("fc.weight")
+            && err.contains("[1048576,512]")
+            && err.contains(&format!("at most {} outputs", pytorch::MAX_HEAD_OUTPUTS)),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_zip_pickle_above_max_pickle_bytes_is_refused_before_it_is_parsed() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("nones.pth");
+    // PROTO 2 and 5 MiB of NONE: parsed, each would take a stack slot of about 90 bytes.
+    let mut pkl = vec![0x80, 2];
+    pkl.resize(2 + (5 << 20), b'N');
+    pth::write_pickle_zip(&file, &pkl);
+    let err = import_error(&file, Arch::Resnet18);
+    assert!(
+        err.contains("archive/data.pkl is")
+            && err.contains(&format!("above the {}", pytorch::MAX_PICKLE_BYTES)),
+        "{err}"
+    );
+}

@@ -59,7 +59,9 @@ struct Rig {
 }
 
 /// A model, one raw frame and a config: the pipe camera repeats the frame at 30 fps and
-/// writes its shell's pid to `camera.pid`; motors are the log backend.
+/// writes its shell's pid to `camera.pid`; motors are the log backend. The camera ends
+/// when a write fails (its reader, the daemon, is gone), as a GStreamer pipeline does; a
+/// `while :` loop would outlive a killed daemon and load the machine round after round.
 fn rig() -> Rig {
     let dir = tempfile::tempdir().unwrap();
     let model = common::write_model(dir.path(), SIDE, 5);
@@ -73,7 +75,7 @@ fn rig() -> Rig {
     let camera_pid = dir.path().join("camera.pid");
     let log = dir.path().join("motors.jsonl");
     let command = format!(
-        "echo $$ > {pid}; exec sh -c 'while :; do cat {frame}; sleep 0.033; done'",
+        "echo $$ > {pid}; exec sh -c 'while cat {frame}; do sleep 0.033; done'",
         pid = camera_pid.display(),
         frame = frame.display()
     );
@@ -102,8 +104,14 @@ fn rig() -> Rig {
     }
 }
 
+/// The binary under test: `JETPILOT_BIN` (the script passes the release build, the one a
+/// robot runs: a 250 MB debug binary takes far longer to start under disk load), else the
+/// test build's.
 fn jetpilot() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+    match std::env::var_os("JETPILOT_BIN") {
+        Some(bin) => Command::new(bin),
+        None => Command::new(env!("CARGO_BIN_EXE_jetpilot")),
+    }
 }
 
 fn log_len(path: &Path) -> u64 {
@@ -146,6 +154,8 @@ struct Round {
     stop: Option<Duration>,
     /// The stop after the last drive was the daemon's own (before `jetpilot stop` ran).
     own_stop: bool,
+    /// When the last drive command was on the log, ms from the fault (negative: before).
+    last_drive_ms: Option<f64>,
     exit: ExitStatus,
 }
 
@@ -223,6 +233,16 @@ fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
         .spawn()
         .expect("start jetpilot stop");
     let post_exit = watch(&mut post, &rig.log, at, &mut trace);
+    // Whatever happened, no camera outlives its round.
+    if let Some(p) = std::fs::read_to_string(&rig.camera_pid)
+        .ok()
+        .and_then(|s| s.trim().parse::<u32>().ok())
+    {
+        let _ = Command::new("kill")
+            .args(["-KILL", &p.to_string()])
+            .stderr(Stdio::null())
+            .status();
+    }
     assert!(post_exit.success(), "jetpilot stop failed: {post_exit:?}");
 
     let text = std::fs::read_to_string(&rig.log).unwrap_or_default();
@@ -236,6 +256,7 @@ fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
         return Round {
             stop: None,
             own_stop: true,
+            last_drive_ms: None,
             exit,
         };
     };
@@ -248,9 +269,22 @@ fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
         .iter()
         .find(|(_, bytes)| *bytes >= stop_end)
         .map_or(trace.last().map_or(Duration::ZERO, |t| t.0), |t| t.0);
+    // The same for the last drive; the trace starts at the fault, so a drive already on
+    // the log then counts as "before" (its time is not known: -0).
+    let drive_end = stop_end - lines[last_drive + 1].len() as u64 - 1;
+    let before = trace.first().is_some_and(|(_, b)| *b >= drive_end);
+    let last_drive_ms = if before {
+        -0.0
+    } else {
+        trace
+            .iter()
+            .find(|(_, b)| *b >= drive_end)
+            .map_or(0.0, |t| t.0.as_secs_f64() * 1e3)
+    };
     Round {
         stop: Some(seen),
         own_stop: stop_end <= daemon_bytes,
+        last_drive_ms: Some(last_drive_ms),
         exit,
     }
 }
@@ -283,7 +317,7 @@ fn rounds_of(fault: Fault, seed: u64) {
             (Moment::AfterFirstDrive(d), d, fault.name().to_string())
         };
         let r = run_round(&rig, fault, moment);
-        common::record_fault_time(&kind, round, delay, r.stop);
+        common::record_fault_time(&kind, round, delay, r.stop, r.last_drive_ms);
         if let Some(stop) = r.stop {
             drove += 1;
             assert!(

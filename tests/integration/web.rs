@@ -918,3 +918,88 @@ async fn under_load_the_autopilot_keeps_its_cadence_and_a_silent_holder_is_still
     drop(ws);
     rig.finish().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn another_sites_page_gets_nothing_even_with_the_cookie() {
+    let state = tempfile::tempdir().unwrap();
+    let rig = Rig::start(token_cfg(state.path()), false).await;
+    let token = rig.token.clone().expect("a token");
+    let port = rig.addr.port();
+    let upgrade = |origin: &str| {
+        format!(
+            "GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: {origin}\r\nCookie: jetpilot_token={token}\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+        )
+    };
+    for origin in [
+        "http://evil.example".to_string(),
+        "null".into(),
+        format!("http://localhost:{port}"),
+    ] {
+        let (code, head) = http(rig.addr, &upgrade(&origin)).await;
+        assert_eq!(code, 403, "{origin}: {head}");
+    }
+    let (code, _) = http(rig.addr, &upgrade(&format!("http://127.0.0.1:{port}"))).await;
+    assert_eq!(code, 101);
+    // Login CSRF: another site's form posting a token gets no cookie.
+    let body = format!("token={token}");
+    let post = format!(
+        "POST /login HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://evil.example\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    let (code, head) = http(rig.addr, &post).await;
+    assert_eq!(code, 403);
+    assert!(!head.to_ascii_lowercase().contains("set-cookie"), "{head}");
+    rig.finish().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_without_the_token_keeps_no_connection_open() {
+    let state = tempfile::tempdir().unwrap();
+    let rig = Rig::start(token_cfg(state.path()), false).await;
+    // Keep-alive requests (no `Connection: close` from the client): answered, then closed.
+    for path in ["/login", "/api/status", "/nowhere"] {
+        let mut s = TcpStream::connect(rig.addr).await.unwrap();
+        s.write_all(format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").as_bytes())
+            .await
+            .unwrap();
+        assert!(
+            closed_within(&mut s, 2.0).await.is_some(),
+            "{path}: left open"
+        );
+    }
+    // With the token the connection stays open for the next request.
+    let token = rig.token.clone().unwrap();
+    let mut s = TcpStream::connect(rig.addr).await.unwrap();
+    s.write_all(
+        format!(
+            "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {token}\r\n\r\n"
+        )
+        .as_bytes(),
+    )
+    .await
+    .unwrap();
+    assert!(
+        closed_within(&mut s, 1.0).await.is_none(),
+        "an authorised keep-alive was closed"
+    );
+    drop(s);
+    rig.finish().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_other_site_may_frame_the_page() {
+    let rig = Rig::start(open_cfg(), false).await;
+    for path in ["/", "/login"] {
+        let (code, head) = http(rig.addr, &get(path, "")).await;
+        assert_eq!(code, 200, "{path}");
+        let head = head.to_ascii_lowercase();
+        for h in [
+            "x-frame-options: deny",
+            "content-security-policy: frame-ancestors 'none'",
+            "x-content-type-options: nosniff",
+        ] {
+            assert!(head.contains(h), "{path}: no {h}: {head}");
+        }
+    }
+    rig.finish().await;
+}

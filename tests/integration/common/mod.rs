@@ -203,8 +203,16 @@ pub fn try_load_ort(path: &Path) -> Result<OrtPolicy, PolicyError> {
 }
 
 /// With `JETPILOT_FAULT_TIMES=FILE` (set by `scripts/faults-under-load.sh`), appends one
-/// fault round, `kind,round,delay_ms,stop_ms,drove`, for the script's summary.
-pub fn record_fault_time(kind: &str, round: usize, delay: Duration, stop: Option<Duration>) {
+/// fault round, `kind,round,delay_ms,stop_ms,drove,last_drive_ms`, for the script's
+/// summary: the stop and the last drive command timed from the fault (the last drive may
+/// come after it: a frame already in flight), `last_drive_ms` empty where not measured.
+pub fn record_fault_time(
+    kind: &str,
+    round: usize,
+    delay: Duration,
+    stop: Option<Duration>,
+    last_drive_ms: Option<f64>,
+) {
     use std::io::Write;
     let Some(path) = std::env::var_os("JETPILOT_FAULT_TIMES") else {
         return;
@@ -216,10 +224,11 @@ pub fn record_fault_time(kind: &str, round: usize, delay: Duration, stop: Option
         .expect("open JETPILOT_FAULT_TIMES");
     writeln!(
         f,
-        "{kind},{round},{},{:.3},{}",
+        "{kind},{round},{},{:.3},{},{}",
         delay.as_millis(),
         stop.map_or(0.0, |d| d.as_secs_f64() * 1e3),
-        stop.is_some()
+        stop.is_some(),
+        last_drive_ms.map_or(String::new(), |v| format!("{v:.3}"))
     )
     .expect("append to JETPILOT_FAULT_TIMES");
 }

@@ -11,6 +11,8 @@ use std::path::Path;
 pub enum Values {
     F32(Vec<f32>),
     I64(Vec<i64>),
+    /// This many f32 elements declared in the pickle, with no bytes stored behind them.
+    Declared(usize),
 }
 
 /// Writes `tensors` (name, shape, values) to `path` under the archive root `archive/`.
@@ -22,6 +24,7 @@ pub fn write_state_dict(path: &Path, tensors: &[(String, Vec<i64>, Values)]) {
         let (storage, numel) = match values {
             Values::F32(v) => ("FloatStorage", v.len()),
             Values::I64(v) => ("LongStorage", v.len()),
+            Values::Declared(n) => ("FloatStorage", *n),
         };
         unicode(&mut pkl, name);
         global(&mut pkl, "torch._utils", "_rebuild_tensor_v2");
@@ -67,9 +70,22 @@ pub fn write_state_dict(path: &Path, tensors: &[(String, Vec<i64>, Values)]) {
         let bytes: Vec<u8> = match values {
             Values::F32(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
             Values::I64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Values::Declared(_) => Vec::new(),
         };
         zip.write_all(&bytes).unwrap();
     }
+    zip.start_file("archive/version", stored).unwrap();
+    zip.write_all(b"3\n").unwrap();
+    zip.finish().unwrap();
+}
+
+/// A ZIP checkpoint whose `data.pkl` is `pkl` as given (stored, root `archive/`).
+pub fn write_pickle_zip(path: &Path, pkl: &[u8]) {
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+    let stored =
+        zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Stored);
+    zip.start_file("archive/data.pkl", stored).unwrap();
+    zip.write_all(pkl).unwrap();
     zip.start_file("archive/version", stored).unwrap();
     zip.write_all(b"3\n").unwrap();
     zip.finish().unwrap();
