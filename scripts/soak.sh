@@ -1,17 +1,18 @@
 #!/usr/bin/env bash
 # Soak (issue 51): the daemon for FRAMES frames on looping simulator frames at the camera's
-# top rate, with a 96x96 int8 model, virtual motors (`motors.backend = "log"`), and the web
-# page on with one MJPEG client watching. Every INTERVAL seconds it samples the daemon's RSS,
-# open file descriptors and threads, and /metrics (frames, commands, watchdog stops, each
-# stage's mean latency over the window) into OUT/soak.csv, then prints the first and last
-# tenth side by side.
+# top rate, with a 96x96 int8 model, virtual motors (`motors.backend = "log"`, every command
+# a JSON line in OUT/motors.jsonl), the web page on with one MJPEG client watching and one
+# page (scripts/soak-client.py) holding the controls in Auto, so the autopilot drives every
+# frame. Every INTERVAL seconds it samples the daemon's RSS, open file descriptors and
+# threads, and /metrics (frames, commands, watchdog stops, each stage's mean latency over
+# the window) into OUT/soak.csv, then prints the first and last tenth side by side, and the
+# gaps between drive commands (median, p99, largest) of the first and last tenth of the run
+# (OUT/gaps.csv per tenth).
 #
 #   scripts/soak.sh FRAMES [OUT]        e.g. scripts/soak.sh 1000000 .cache/soak
 #
 # FPS (default 240, the camera's top rate), INTERVAL (default 10 s) and PORT (default 8897)
-# change the run. No page holds the controls, so the daemon stays in Manual: every frame is
-# captured, preprocessed and run through the model, and the control tick writes stops to the
-# virtual motors; the autopilot's own writes are not exercised here (the web load test is).
+# change the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -55,9 +56,11 @@ path = "$OUT/model.onnx"
 
 [motors]
 backend = "log"
+log_path = "$OUT/motors.jsonl"
 
 [log]
 stats_interval_s = 60.0
+print_commands = false
 
 [web]
 enabled = true
@@ -66,11 +69,14 @@ EOF
 
 DURATION=$(( (FRAMES + FPS - 1) / FPS ))
 echo "soak: $FRAMES frames at $FPS fps: at least $DURATION s; samples every $INTERVAL s into $OUT/soak.csv"
+rm -f "$OUT/motors.jsonl"
 "$B" run --config "$OUT/soak.toml" --duration "$DURATION" > "$OUT/daemon.log" 2>&1 &
 PID=$!
 VIDEO=
+HOLDER=
 cleanup() {
   [ -n "$VIDEO" ] && kill "$VIDEO" 2>/dev/null || true
+  [ -n "$HOLDER" ] && kill "$HOLDER" 2>/dev/null || true
   kill "$PID" 2>/dev/null || true
 }
 trap cleanup EXIT
@@ -80,6 +86,16 @@ for _ in $(seq 100); do
 done
 curl -sN "http://127.0.0.1:$PORT/video" > /dev/null &
 VIDEO=$!
+python3 scripts/soak-client.py hold "$PORT" 2> "$OUT/holder.log" &
+HOLDER=$!
+for _ in $(seq 50); do
+  curl -sf "http://127.0.0.1:$PORT/api/status" | grep -q '"mode":"auto"' && break
+  sleep 0.2
+done
+if ! curl -sf "http://127.0.0.1:$PORT/api/status" | grep -q '"mode":"auto"'; then
+  echo "soak: the page holder did not put the daemon in Auto (see $OUT/holder.log)" >&2
+  exit 1
+fi
 
 metric() { awk -v k="$1" '$1 == k { print $2; exit }' "$OUT/metrics.txt"; }
 stage() { # mean latency (ms) of a stage over the window: (sum - sum0) / (count - count0)
@@ -131,3 +147,4 @@ awk -F, 'NR > 1 { n++; row[n] = $0 } END {
   split(row[n], v, ",")
   printf "frames %d, commands %d, watchdog stops %d\n", v[5], v[6], v[7]
 }' "$OUT/soak.csv" | tee "$OUT/summary.txt"
+python3 scripts/soak-client.py gaps "$OUT/motors.jsonl" "$OUT/gaps.csv" | tee -a "$OUT/summary.txt"
