@@ -148,3 +148,16 @@ awk -F, 'NR > 1 { n++; row[n] = $0 } END {
   printf "frames %d, commands %d, watchdog stops %d\n", v[5], v[6], v[7]
 }' "$OUT/soak.csv" | tee "$OUT/summary.txt"
 python3 scripts/soak-client.py gaps "$OUT/motors.jsonl" "$OUT/gaps.csv" | tee -a "$OUT/summary.txt"
+
+# The figures, with `jetpilot train plot` (a build with the trainer: PLOT_BIN, else the
+# debug build the test suite makes).
+PLOT=${PLOT_BIN:-target/debug/jetpilot}
+if [ -x "$PLOT" ] && "$PLOT" train plot --help > /dev/null 2>&1; then
+  "$PLOT" -q train plot --csv "$OUT/soak.csv" --x t_s --y rss_kb -o "$OUT/soak-rss.png" \
+    --title "soak: daemon RSS (kB) against time (s)"
+  "$PLOT" -q train plot --csv "$OUT/gaps.csv" --x tenth --y p99_ms -o "$OUT/soak-gaps.png" \
+    --title "soak: p99 gap between drive commands (ms), per tenth of the run"
+  echo "soak: figures $OUT/soak-rss.png, $OUT/soak-gaps.png"
+else
+  echo "soak: no figures: they need a build with the trainer (cargo build --features train; PLOT_BIN=...)" >&2
+fi
