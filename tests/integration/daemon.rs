@@ -176,7 +176,9 @@ fn a_stalled_camera_stops_the_motors_within_the_watchdog_period() {
         "stalled_camera_past_watchdog",
         0,
         Duration::ZERO,
-        Some(gap.saturating_sub(WATCHDOG)), None);
+        Some(gap.saturating_sub(WATCHDOG)),
+        None,
+    );
     assert!(
         gap >= WATCHDOG && gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"
@@ -447,7 +449,9 @@ fn an_unplugged_camera_stops_the_motors_then_driving_resumes() {
         "camera_unplugged",
         0,
         Duration::ZERO,
-        Some(gap.saturating_sub(Duration::from_millis(100))), None);
+        Some(gap.saturating_sub(Duration::from_millis(100))),
+        None,
+    );
     assert!(
         gap <= WATCHDOG + SLACK,
         "stop {gap:?} after the last command"

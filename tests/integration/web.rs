@@ -77,6 +77,15 @@ fn noise_frames(dir: &Path, n: usize, w: u32, h: u32) -> std::path::PathBuf {
 
 impl Rig {
     async fn start(web: WebConfig, noise: bool) -> Rig {
+        Rig::start_with(web, noise, None).await
+    }
+
+    /// [`Rig::start`] with a recorder for the page's Record button.
+    async fn start_with(
+        web: WebConfig,
+        noise: bool,
+        recorder: Option<jetpilot::drive::recorder::Recorder>,
+    ) -> Rig {
         let dir = tempfile::tempdir().unwrap();
         let frames = if noise {
             noise_frames(dir.path(), 4, 320, 240)
@@ -108,7 +117,7 @@ impl Rig {
             autopilot_available: true,
             log: None,
             model_hash: "test".into(),
-            recorder: None,
+            recorder,
             open_recorder: None,
             recording: false,
         };
@@ -1002,4 +1011,74 @@ async fn no_other_site_may_frame_the_page() {
         }
     }
     rig.finish().await;
+}
+
+/// Unmounts a file system when dropped.
+struct Mounted(std::path::PathBuf);
+
+impl Drop for Mounted {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_while_recording_keeps_the_tub_and_the_page_says_why() {
+    use jetpilot::dataset::tub::{TubInputs, TubReader, TubWriter};
+    use jetpilot::drive::recorder::Recorder;
+    // A real full file system: a 1 MiB tmpfs. Mounting needs root (CI's machine is); where
+    // it is refused the test says so and has nothing to check.
+    let mnt = tempfile::tempdir().unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=1m", "tmpfs"])
+        .arg(mnt.path())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("SKIPPED: cannot mount a tmpfs here (not root?)");
+        return;
+    }
+    let _unmount = Mounted(mnt.path().to_path_buf());
+    let tub_dir = mnt.path().join("tub");
+    let tub = TubWriter::create(&tub_dir, &TubInputs::ALL, 1.0e9).unwrap();
+    let recorder = Recorder::start(Box::new(tub), 1_000_000, None).unwrap();
+    // Noise frames (320x240) make JPEGs of tens of KB: the card is full within seconds.
+    let rig = Rig::start_with(open_cfg(), true, Some(recorder)).await;
+    let mut ws = rig.ws(None).await.unwrap();
+    say(&mut ws, r#"{"type":"record","on":true}"#).await;
+    let mut full = None;
+    for _ in 0..100 {
+        drive_for(&mut ws, &rig.clock, 0.6, 0.2).await;
+        let s = rig.status.borrow().clone();
+        if s.record_error.is_some() {
+            full = Some(s);
+            break;
+        }
+    }
+    let s = full.expect("the 1 MiB card never filled");
+    let why = s.record_error.clone().unwrap();
+    eprintln!("{} records, then: {why}", s.records);
+    assert!(why.contains("No space left on device"), "{why}");
+    assert!(
+        why.contains(&*mnt.path().to_string_lossy()),
+        "names the file: {why}"
+    );
+    assert!(!s.recording, "the page still says recording");
+    assert!(s.records > 0, "nothing was recorded before the card filled");
+    // Driving goes on: the page's sticks still reach the motors.
+    let before = rig.clock.now();
+    drive_for(&mut ws, &rig.clock, 0.6, 0.5).await;
+    let w = WheelCommand::new(0.3, 0.3);
+    let after: Vec<_> = rig
+        .events()
+        .into_iter()
+        .filter(|(t, _)| *t > before)
+        .collect();
+    assert!(drove(&after, w) >= 2, "no driving after the card filled");
+    drop(ws);
+    let end = rig.finish().await;
+    // Everything written before the card filled reads back.
+    let tub = TubReader::open(&tub_dir).unwrap();
+    assert_eq!(tub.records().count() as u64, end.records);
 }
