@@ -73,12 +73,17 @@ fn rig() -> Rig {
     );
     std::fs::write(&frame, rgb).unwrap();
     let camera_pid = dir.path().join("camera.pid");
-    let log = dir.path().join("motors.jsonl");
     let command = format!(
         "echo $$ > {pid}; exec sh -c 'while cat {frame}; do sleep 0.033; done'",
         pid = camera_pid.display(),
         frame = frame.display()
     );
+    rig_in(dir, &model, &command, camera_pid)
+}
+
+/// The config for `model` and the pipe camera's `command`, in `dir`.
+fn rig_in(dir: tempfile::TempDir, model: &Path, command: &str, camera_pid: PathBuf) -> Rig {
+    let log = dir.path().join("motors.jsonl");
     let config = dir.path().join("run.toml");
     std::fs::write(
         &config,
@@ -374,4 +379,130 @@ fn sigkill_at_random_moments_then_exec_stop_post_stops_the_motors() {
 #[test]
 fn the_camera_command_dying_mid_run_stops_the_motors() {
     rounds_of(Fault::CameraGone, 3);
+}
+
+/// A 64x64 model that ONNX Runtime runs on a dark frame and fails on a bright one, as a
+/// real runtime error comes mid-run: `Gather` of row `Cast(mean(input), INT64)` from a
+/// 2-row table. A black frame's normalised mean is about -2.0 (row -2, the first); a white
+/// one's about +2.4, row 2: "indices element out of data bounds".
+fn model_failing_on_bright_frames(dir: &Path) -> PathBuf {
+    use jetpilot::policy::ModelContract;
+    use jetpilot::policy::onnx::{self, Dim, GraphBuilder, attr_int};
+    let contract = ModelContract {
+        input_size: SIDE,
+        ..ModelContract::default()
+    };
+    let side = SIDE as i64;
+    let mut g = GraphBuilder::new("fails_on_bright_frames");
+    g.input_f32("input", &[1, 3, side, side].map(Dim::Fixed));
+    g.initializer_f32("table", &[2, 2], &[0.1, 0.2, 0.1, 0.2])
+        .unwrap();
+    g.initializer_i64("shape", &[2], &[1, 2]).unwrap();
+    g.node(
+        "ReduceMean",
+        &["input"],
+        &["mean"],
+        vec![attr_int("keepdims", 0)],
+    );
+    g.node("Cast", &["mean"], &["row"], vec![attr_int("to", 7)]); // INT64
+    g.node(
+        "Gather",
+        &["table", "row"],
+        &["picked"],
+        vec![attr_int("axis", 0)],
+    );
+    g.node("Reshape", &["picked", "shape"], &["output"], vec![]);
+    g.output_f32("output", &[1, 2].map(Dim::Fixed));
+    let model = g.finish("test", "0", &contract.to_metadata()).unwrap();
+    let path = dir.join("fails_on_bright_frames.onnx");
+    onnx::write_model(&path, &model).unwrap();
+    path
+}
+
+#[test]
+fn an_onnx_runtime_error_mid_run_stops_the_motors() {
+    // The camera sends K black frames, then white ones: ONNX Runtime fails on the first
+    // white frame it runs, after K - (frames dropped) good commands. K is random per round.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    for round in 0..rounds() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = model_failing_on_bright_frames(dir.path());
+        let (black, white) = (dir.path().join("black.rgb"), dir.path().join("white.rgb"));
+        let n = (SIDE * SIDE * 3) as usize;
+        std::fs::write(&black, vec![0u8; n]).unwrap();
+        std::fs::write(&white, vec![255u8; n]).unwrap();
+        let camera_pid = dir.path().join("camera.pid");
+        let k: u32 = rng.random_range(10..40);
+        let command = format!(
+            "echo $$ > {pid}; i=0; while [ $i -lt {k} ] && cat {black}; do sleep 0.033; i=$((i + 1)); done; \
+             while cat {white}; do sleep 0.033; done",
+            pid = camera_pid.display(),
+            black = black.display(),
+            white = white.display()
+        );
+        let rig = rig_in(dir, &model, &command, camera_pid);
+        let mut child = jetpilot()
+            .args(["run", "--config"])
+            .arg(&rig.config)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&rig.stderr).unwrap())
+            .spawn()
+            .expect("start jetpilot run");
+        let started = Instant::now();
+        let exit = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(30),
+                "round {round}: still running"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let err = std::fs::read_to_string(&rig.stderr).unwrap_or_default();
+        assert!(
+            !exit.success(),
+            "round {round}: a runtime error ended cleanly"
+        );
+        assert!(
+            err.contains("out of data bounds") || err.contains("indices"),
+            "round {round}: {err}"
+        );
+        // On the daemon's own clock: the stop after the last good command.
+        let text = std::fs::read_to_string(&rig.log).unwrap();
+        let t = |l: &str| -> f64 {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v["t"].as_f64().unwrap()
+        };
+        let lines: Vec<&str> = text.lines().collect();
+        let last = lines
+            .iter()
+            .rposition(|l| l.contains("\"left\""))
+            .unwrap_or_else(|| panic!("round {round}: never drove: {err}"));
+        let stop = lines
+            .get(last + 1)
+            .filter(|l| l.contains("\"stop\":true"))
+            .unwrap_or_else(|| panic!("round {round}: no stop after the last command"));
+        assert!(
+            lines[last + 1..]
+                .iter()
+                .all(|l| l.contains("\"stop\":true")),
+            "round {round}: drove after the stop"
+        );
+        let gap = Duration::from_secs_f64(t(stop) - t(lines[last]));
+        common::record_fault_time("onnx_runtime_error", round, Duration::ZERO, Some(gap), None);
+        assert!(
+            gap <= BOUND,
+            "round {round}: stopped {gap:?} after the last command"
+        );
+        if let Some(p) = std::fs::read_to_string(&rig.camera_pid)
+            .ok()
+            .and_then(|s| s.trim().parse::<u32>().ok())
+        {
+            let _ = Command::new("kill")
+                .args(["-KILL", &p.to_string()])
+                .stderr(Stdio::null())
+                .status();
+        }
+    }
 }
