@@ -58,11 +58,15 @@ pub enum MotorEvent {
 /// arrived (on the clock the recorder was given).
 pub type MotorRecord = Arc<Mutex<Vec<(std::time::Duration, MotorEvent)>>>;
 
-/// The `log` backend: a virtual motor output that keeps every command in memory (for tests
-/// and the simulator) and, when given a path, appends each as a JSON line and flushes it
-/// (so a test or a person can follow it from outside the process).
+/// The `log` backend: a virtual motor output that keeps every command in memory once
+/// someone asked for the [`LogMotors::record`] (tests), and, when given a path, appends each
+/// as a JSON line and flushes it (so a test or a person can follow it from outside the
+/// process). Without a record taken nothing grows: a soak at 240 commands a second found
+/// the daemon's RSS climbing by 28 MB an hour when every event was kept.
 pub struct LogMotors {
     record: MotorRecord,
+    /// Set by [`LogMotors::record`]: keep events in memory from then on.
+    keep: std::sync::atomic::AtomicBool,
     clock: Arc<dyn crate::clock::Clock>,
     file: Option<(PathBuf, BufWriter<File>)>,
     print: bool,
@@ -72,6 +76,7 @@ impl LogMotors {
     pub fn new(clock: Arc<dyn crate::clock::Clock>) -> Self {
         Self {
             record: Arc::default(),
+            keep: std::sync::atomic::AtomicBool::new(false),
             clock,
             file: None,
             print: false,
@@ -98,14 +103,18 @@ impl LogMotors {
         self
     }
 
-    /// A handle on the recorded events that stays valid after the output is dropped.
+    /// A handle on the recorded events that stays valid after the output is dropped; events
+    /// are kept in memory from this call on.
     pub fn record(&self) -> MotorRecord {
+        self.keep.store(true, std::sync::atomic::Ordering::Relaxed);
         self.record.clone()
     }
 
     fn push(&mut self, event: MotorEvent) -> Result<()> {
         let t = self.clock.now();
-        if let Ok(mut rec) = self.record.lock() {
+        if self.keep.load(std::sync::atomic::Ordering::Relaxed)
+            && let Ok(mut rec) = self.record.lock()
+        {
             rec.push((t, event));
         }
         if self.print {
@@ -173,5 +182,22 @@ impl<M: MotorOutput + ?Sized> MotorOutput for Box<M> {
     }
     fn describe(&self) -> String {
         (**self).describe()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn events_are_kept_in_memory_only_once_a_record_is_taken() {
+        let mut m = LogMotors::new(Arc::new(crate::clock::MonotonicClock::new()));
+        m.drive(WheelCommand::new(0.1, 0.2)).unwrap();
+        m.stop().unwrap();
+        let rec = m.record();
+        assert!(rec.lock().unwrap().is_empty(), "kept before anyone asked");
+        m.drive(WheelCommand::new(0.3, 1.5)).unwrap();
+        let events: Vec<MotorEvent> = rec.lock().unwrap().iter().map(|(_, e)| *e).collect();
+        assert_eq!(events, vec![MotorEvent::Drive(WheelCommand::new(0.3, 1.0))]);
     }
 }
