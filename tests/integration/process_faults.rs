@@ -1,16 +1,20 @@
 //! The daemon as a process, faulted at random moments the way a robot meets them: SIGTERM
 //! (`systemctl stop`), SIGKILL followed by `jetpilot stop` (what the systemd unit's
-//! `ExecStopPost` runs after every exit, a kill included), and the camera's command dying
-//! mid-run (a CSI pipeline that crashes). Each round measures how long after the fault the
-//! motors were stopped for good: the virtual motors' log is polled every millisecond, and
-//! the moment counts when the stop that follows the last drive command is on it.
+//! `ExecStopPost` runs after every exit, a kill included), the camera's command dying
+//! mid-run (a CSI pipeline that crashes), and a real ONNX Runtime error mid-run (a model
+//! that fails on bright frames). Each round measures how long after the fault the motors
+//! were stopped for good: the virtual motors' log is polled every millisecond, and the
+//! moment counts when the stop that follows the last drive command is on it (for the
+//! runtime error, on the daemon's clock, from the last good command).
 //!
 //! The tests check what must always hold (the run ends stopped, the daemon's own stop on
 //! SIGTERM and on a dead camera, a bound of 1 s on a loaded test machine);
 //! `scripts/faults-under-load.sh` runs 50 rounds of each kind under CPU and I/O load and
 //! holds the worst time to the watchdog period. Environment:
 //! - `JETPILOT_FAULT_ROUNDS`: rounds per kind (default 2);
-//! - `JETPILOT_FAULT_TIMES=FILE`: append `kind,round,delay_ms,stop_ms,drove` per round.
+//! - `JETPILOT_FAULT_TIMES=FILE`: append `kind,round,delay_ms,stop_ms,drove,last_drive_ms`
+//!   per round;
+//! - `JETPILOT_BIN`: the binary to run (default: the test build's).
 //!
 //! Needs the ONNX Runtime library (scripts/install-onnxruntime.sh).
 
