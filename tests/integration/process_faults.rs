@@ -113,6 +113,36 @@ fn rig_in(dir: tempfile::TempDir, model: &Path, command: &str, camera_pid: PathB
     }
 }
 
+impl Rig {
+    /// `jetpilot run` on this rig's config, its standard error to `stderr.txt`.
+    fn start(&self) -> Child {
+        jetpilot()
+            .args(["run", "--config"])
+            .arg(&self.config)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&self.stderr).unwrap())
+            .spawn()
+            .expect("start jetpilot run")
+    }
+
+    /// The camera's shell, from its pid file, if it wrote one.
+    fn camera(&self) -> Option<u32> {
+        std::fs::read_to_string(&self.camera_pid)
+            .ok()
+            .and_then(|s| s.trim().parse().ok())
+    }
+
+    /// Kills what is left of the camera (it ends by itself once its reader is gone).
+    fn kill_camera(&self) {
+        if let Some(p) = self.camera() {
+            let _ = Command::new("kill")
+                .args(["-KILL", &p.to_string()])
+                .stderr(Stdio::null())
+                .status();
+        }
+    }
+}
+
 /// The binary under test: `JETPILOT_BIN` (the script passes the release build, the one a
 /// robot runs: a 250 MB debug binary takes far longer to start under disk load), else the
 /// test build's.
@@ -180,13 +210,7 @@ enum Moment {
 fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
     let _ = std::fs::remove_file(&rig.log);
     let _ = std::fs::remove_file(&rig.camera_pid);
-    let mut child = jetpilot()
-        .args(["run", "--config"])
-        .arg(&rig.config)
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&rig.stderr).unwrap())
-        .spawn()
-        .expect("start jetpilot run");
+    let mut child = rig.start();
     let started = Instant::now();
     let delay = match moment {
         Moment::AfterStart(d) => d,
@@ -204,10 +228,7 @@ fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
         Fault::Term | Fault::Kill => child.id(),
         Fault::CameraGone => loop {
             // The camera must be up to die: wait for its pid.
-            if let Some(p) = std::fs::read_to_string(&rig.camera_pid)
-                .ok()
-                .and_then(|s| s.trim().parse::<u32>().ok())
-            {
+            if let Some(p) = rig.camera() {
                 break p;
             }
             assert!(
@@ -243,15 +264,7 @@ fn run_round(rig: &Rig, fault: Fault, moment: Moment) -> Round {
         .expect("start jetpilot stop");
     let post_exit = watch(&mut post, &rig.log, at, &mut trace);
     // Whatever happened, no camera outlives its round.
-    if let Some(p) = std::fs::read_to_string(&rig.camera_pid)
-        .ok()
-        .and_then(|s| s.trim().parse::<u32>().ok())
-    {
-        let _ = Command::new("kill")
-            .args(["-KILL", &p.to_string()])
-            .stderr(Stdio::null())
-            .status();
-    }
+    rig.kill_camera();
     assert!(post_exit.success(), "jetpilot stop failed: {post_exit:?}");
 
     let text = std::fs::read_to_string(&rig.log).unwrap_or_default();
@@ -445,13 +458,7 @@ fn an_onnx_runtime_error_mid_run_stops_the_motors() {
             white = white.display()
         );
         let rig = rig_in(dir, &model, &command, camera_pid);
-        let mut child = jetpilot()
-            .args(["run", "--config"])
-            .arg(&rig.config)
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&rig.stderr).unwrap())
-            .spawn()
-            .expect("start jetpilot run");
+        let mut child = rig.start();
         let started = Instant::now();
         let exit = loop {
             if let Some(s) = child.try_wait().unwrap() {
@@ -499,14 +506,6 @@ fn an_onnx_runtime_error_mid_run_stops_the_motors() {
             gap <= BOUND,
             "round {round}: stopped {gap:?} after the last command"
         );
-        if let Some(p) = std::fs::read_to_string(&rig.camera_pid)
-            .ok()
-            .and_then(|s| s.trim().parse::<u32>().ok())
-        {
-            let _ = Command::new("kill")
-                .args(["-KILL", &p.to_string()])
-                .stderr(Stdio::null())
-                .status();
-        }
+        rig.kill_camera();
     }
 }
