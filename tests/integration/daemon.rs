@@ -278,10 +278,14 @@ fn a_frame_source_error_stops_the_motors() {
     );
 }
 
-#[test]
-fn an_i2c_error_stops_the_motors() {
-    // Adafruit HAT on a bus that fails 3 transactions in a row (1 try + 2 retries) once the
-    // robot is driving, then recovers: the daemon faults and its stop reaches the chip.
+/// Drives an Adafruit HAT on a bus whose transactions `fail` (counted from the first after
+/// init) fail, from `frames` scripted frames (then a stall), until `shutdown`; returns the
+/// run's outcome, the bus, and the number of init transactions.
+fn drive_hat_on_flaky_bus(
+    fail: std::ops::Range<usize>,
+    frames: ScriptedSource,
+    shutdown: Duration,
+) -> (Outcome, FlakyBus, usize) {
     let bus = FlakyBus::default();
     let hat = MotorHat::init(
         bus.clone(),
@@ -290,12 +294,10 @@ fn an_i2c_error_stops_the_motors() {
     )
     .unwrap();
     let init_writes = bus.writes.lock().unwrap().len();
-    // The first drive writes 4 transactions per motor (PWM, IN low cached, IN high = 2);
-    // fail from the 10th transaction after init, i.e. during the second or third command.
-    *bus.fail.lock().unwrap() = init_writes + 10..init_writes + 13;
+    *bus.fail.lock().unwrap() = init_writes + fail.start..init_writes + fail.end;
     let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
     let parts = Parts {
-        source: Box::new(source(50, false)),
+        source: Box::new(frames),
         policy: Box::new(ScriptedPolicy::new(|n| {
             Step::Out(if n % 2 == 0 { [0.3, 0.2] } else { [-0.3, 0.2] })
         })),
@@ -305,14 +307,19 @@ fn an_i2c_error_stops_the_motors() {
         status: None,
         live: None,
     };
-    let outcome = block_on(async {
-        drive::run(
-            parts,
-            params(gains()),
-            tokio::time::sleep(Duration::from_secs(10)),
-        )
-        .await
-    });
+    let outcome =
+        block_on(async { drive::run(parts, params(gains()), tokio::time::sleep(shutdown)).await });
+    (outcome, bus, init_writes)
+}
+
+#[test]
+fn an_i2c_error_stops_the_motors() {
+    // Adafruit HAT on a bus that fails 3 transactions in a row (1 try + 2 retries) once the
+    // robot is driving, then recovers: the daemon faults and its stop reaches the chip.
+    // The first drive writes 4 transactions per motor (PWM, IN low cached, IN high = 2);
+    // fail from the 10th transaction after init, i.e. during the second or third command.
+    let (outcome, bus, _) =
+        drive_hat_on_flaky_bus(10..13, source(50, false), Duration::from_secs(10));
     let (err, report) = outcome.expect_err("I2C failure is a fault");
     assert!(matches!(err, DriveError::Motor(_)), "{err}");
     assert!(err.to_string().contains("after 3 attempts"), "{err}");
@@ -331,39 +338,12 @@ fn an_i2c_error_stops_the_motors() {
 #[test]
 fn one_i2c_error_is_retried_and_driving_goes_on() {
     // One failed transaction (a glitch on the bus): the retry writes it again, no fault,
-    // every command reaches the chip and the run ends normally, stopped.
-    let bus = FlakyBus::default();
-    let hat = MotorHat::init(
-        bus.clone(),
-        HatSettings::for_layout(HatLayout::Adafruit),
-        &mut NoopDelay,
-    )
-    .unwrap();
-    let init_writes = bus.writes.lock().unwrap().len();
-    *bus.fail.lock().unwrap() = init_writes + 10..init_writes + 11;
-    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::new());
-    // 20 frames, then the source stalls until released (the watchdog stops the motors).
+    // every command reaches the chip and the run ends normally, stopped. 20 frames, then
+    // the source stalls until released (the watchdog stops the motors).
     let frames = source(20, false);
     let release = frames.release.clone();
-    let parts = Parts {
-        source: Box::new(frames),
-        policy: Box::new(ScriptedPolicy::new(|n| {
-            Step::Out(if n % 2 == 0 { [0.3, 0.2] } else { [-0.3, 0.2] })
-        })),
-        motors: Box::new(hat) as Box<dyn MotorOutput>,
-        clock,
-        teleop: None,
-        status: None,
-        live: None,
-    };
-    let outcome = block_on(async {
-        drive::run(
-            parts,
-            params(gains()),
-            tokio::time::sleep(Duration::from_secs(1)),
-        )
-        .await
-    });
+    let (outcome, bus, init_writes) =
+        drive_hat_on_flaky_bus(10..11, frames, Duration::from_secs(1));
     release.store(true, Ordering::Relaxed);
     let (end, report) = outcome.expect("one I2C error is retried, not a fault");
     assert_eq!(end, RunEnd::Shutdown);
