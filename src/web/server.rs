@@ -85,32 +85,26 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             close_unless_authorised,
         ))
-        .layer(
-            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
-                header::CACHE_CONTROL,
-                HeaderValue::from_static("no-store"),
-            ),
-        )
+        .layer(header_if_absent(header::CACHE_CONTROL, "no-store"))
         // No other site may frame the page (clickjacking its buttons), nor sniff types.
-        .layer(
-            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
-                header::X_FRAME_OPTIONS,
-                HeaderValue::from_static("DENY"),
-            ),
-        )
-        .layer(
-            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
-                header::CONTENT_SECURITY_POLICY,
-                HeaderValue::from_static("frame-ancestors 'none'"),
-            ),
-        )
-        .layer(
-            tower_http::set_header::SetResponseHeaderLayer::if_not_present(
-                header::X_CONTENT_TYPE_OPTIONS,
-                HeaderValue::from_static("nosniff"),
-            ),
-        )
+        .layer(header_if_absent(header::X_FRAME_OPTIONS, "DENY"))
+        .layer(header_if_absent(
+            header::CONTENT_SECURITY_POLICY,
+            "frame-ancestors 'none'",
+        ))
+        .layer(header_if_absent(header::X_CONTENT_TYPE_OPTIONS, "nosniff"))
         .with_state(state)
+}
+
+/// Sets `name: value` on every response that does not set it itself.
+fn header_if_absent(
+    name: header::HeaderName,
+    value: &'static str,
+) -> tower_http::set_header::SetResponseHeaderLayer<HeaderValue> {
+    tower_http::set_header::SetResponseHeaderLayer::if_not_present(
+        name,
+        HeaderValue::from_static(value),
+    )
 }
 
 /// Answers a request that does not carry the right token (the login page, a 401, a 403,
@@ -118,11 +112,10 @@ pub fn router(state: AppState) -> Router {
 /// response). With keep-alive, a client that never had the token could hold one of
 /// `web.max_connections` for as long as it asked again within `web.idle_timeout_ms`.
 async fn close_unless_authorised(State(s): State<AppState>, req: Request, next: Next) -> Response {
-    let authorised = match s.token.as_deref() {
-        None => true,
-        Some(expected) => auth::presented(req.headers(), req.uri().query())
-            .is_some_and(|g| auth::same(&g, expected)),
-    };
+    let authorised = s
+        .token
+        .as_deref()
+        .is_none_or(|expected| carries_token(&req, expected));
     let mut r = next.run(req).await;
     if !authorised {
         r.headers_mut()
@@ -176,12 +169,16 @@ pub fn loopback_host(host: &str) -> bool {
 
 /// The token check. A browser without it is sent to the login page; everything else gets
 /// 401. `/?token=...` sets the cookie and redirects to `/` (the link printed in the log).
+/// The request presents `expected` (cookie, `Authorization: Bearer` or `?token=`).
+fn carries_token(req: &Request, expected: &str) -> bool {
+    auth::presented(req.headers(), req.uri().query()).is_some_and(|g| auth::same(&g, expected))
+}
+
 async fn require_token(State(s): State<AppState>, req: Request, next: Next) -> Response {
     let Some(expected) = s.token.as_deref() else {
         return next.run(req).await;
     };
-    let given = auth::presented(req.headers(), req.uri().query());
-    if given.as_deref().is_some_and(|g| auth::same(g, expected)) {
+    if carries_token(&req, expected) {
         let from_query = auth::query_token(req.uri().query()).is_some();
         if req.uri().path() == "/" && from_query {
             let mut r = Redirect::to("/").into_response();
@@ -195,7 +192,7 @@ async fn require_token(State(s): State<AppState>, req: Request, next: Next) -> R
     if req.uri().path() == "/" {
         return Redirect::to("/login").into_response();
     }
-    let why = if given.is_some() {
+    let why = if auth::presented(req.headers(), req.uri().query()).is_some() {
         "wrong token"
     } else {
         "token required"
