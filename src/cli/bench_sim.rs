@@ -184,13 +184,7 @@ pub fn main(iterations: u32) -> anyhow::Result<ExitCode> {
     let n = (iterations / 10).max(3);
     let (p50, p90) = time_ms(n, |i| {
         let scene = &scenes[i as usize % scenes.len()];
-        let painted = renderer
-            .repaint(
-                &track.paint_with(&scene.paint),
-                scene.mat_rgb,
-                scene.floor_rgb,
-            )
-            .and_then(|()| renderer.set_backdrop(Some(scene.backdrop(&cfg.sim.camera))));
+        let painted = scene.show(&mut renderer, &track);
         if let Err(e) = painted {
             failed = Some(e);
         }

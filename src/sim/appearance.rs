@@ -72,12 +72,37 @@ pub struct AppearanceConfig {
     pub line_width_scale: [f32; 2],
     /// Each paint colour's channels within `1 +- colour_jitter`.
     pub colour_jitter: f32,
+    /// Probability of a road of paint or cardboard on the floor (with or without edges).
+    pub painted_probability: f32,
+    /// Probability that an edge line is worn: one missing, or broken as tape peels.
+    pub edge_wear_probability: f32,
+    /// Probability of a textured floor (carpet, concrete, wood, foam tiles, tiles:
+    /// `sim::floor`) rather than a flat colour.
+    pub floor_texture_probability: f32,
+    /// Number of cables lying on the floor, `[least, most]`.
+    pub cables: [u32; 2],
+    /// Number of things standing on the floor in view (feet and legs, chair legs, boxes),
+    /// `[least, most]`.
+    pub floor_objects: [u32; 2],
+    /// Probability of the robot's own shadow at the bottom of the frame, and again of
+    /// another shadow on the floor.
+    pub shadow_probability: f32,
+    /// Probability of a bright window on the wall.
+    pub window_probability: f32,
     /// Number of blocks (furniture, people) beyond the mat, `[least, most]`.
     pub clutter: [u32; 2],
     /// The camera's tilt below the horizontal, degrees, drawn with each look (rendered
     /// frames only; unset: `[sim.camera] tilt_deg` throughout). JetBot's camera mount is
     /// bent by hand: the real frames show it from about 15 to 37 degrees.
     pub camera_tilt_deg: Option<[f32; 2]>,
+    /// The camera's height above the floor, metres, drawn with each look (rendered frames
+    /// only; unset: `[sim.camera] height_m`). JetBot kits mount it from about 0.08 to
+    /// 0.15 m.
+    pub camera_height_m: Option<[f32; 2]>,
+    /// The lens's field of view times a factor drawn from this range with each look
+    /// (rendered frames only; unset: the configured lens). Spreads one lens model over
+    /// the 160-200 degree lenses JetBot kits ship.
+    pub lens_fov_scale: Option<[f32; 2]>,
 }
 
 impl Default for AppearanceConfig {
@@ -96,12 +121,21 @@ impl Default for AppearanceConfig {
             light_gradient: [0.0, 0.5],
             glare_probability: 0.3,
             scene: true,
-            print_probability: 0.4,
-            tape_probability: 0.3,
+            print_probability: 0.3,
+            tape_probability: 0.35,
+            painted_probability: 0.15,
+            edge_wear_probability: 0.25,
+            floor_texture_probability: 0.8,
+            cables: [0, 2],
+            floor_objects: [0, 2],
+            shadow_probability: 0.4,
+            window_probability: 0.3,
             line_width_scale: [0.6, 1.6],
             colour_jitter: 0.15,
             clutter: [0, 6],
             camera_tilt_deg: None,
+            camera_height_m: None,
+            lens_fov_scale: None,
         }
     }
 }
@@ -131,6 +165,11 @@ impl AppearanceConfig {
             ("glare_probability", self.glare_probability),
             ("print_probability", self.print_probability),
             ("tape_probability", self.tape_probability),
+            ("painted_probability", self.painted_probability),
+            ("edge_wear_probability", self.edge_wear_probability),
+            ("floor_texture_probability", self.floor_texture_probability),
+            ("shadow_probability", self.shadow_probability),
+            ("window_probability", self.window_probability),
         ] {
             if !(0.0..=1.0).contains(&p) {
                 return bad(format!("{name} = {p} must be in 0..=1"));
@@ -139,10 +178,11 @@ impl AppearanceConfig {
         if !(0.0..=0.9).contains(&self.tint) {
             return bad(format!("tint = {} must be in 0..=0.9", self.tint));
         }
-        if self.print_probability + self.tape_probability > 1.0 {
+        let roads = self.print_probability + self.tape_probability + self.painted_probability;
+        if roads > 1.0 + 1e-6 {
             return bad(format!(
-                "print_probability + tape_probability = {} must be at most 1",
-                self.print_probability + self.tape_probability
+                "print_probability + tape_probability + painted_probability = {roads} must be \
+                 at most 1 (the rest is the simulator's own mat)"
             ));
         }
         if !(0.0..=0.5).contains(&self.colour_jitter) {
@@ -151,11 +191,28 @@ impl AppearanceConfig {
                 self.colour_jitter
             ));
         }
-        let [lo, hi] = self.clutter;
-        if lo > hi || hi > 64 {
-            return bad(format!(
-                "clutter = [{lo}, {hi}] must satisfy low <= high <= 64"
-            ));
+        for (name, [lo, hi], most) in [
+            ("clutter", self.clutter, 64),
+            ("cables", self.cables, 16),
+            ("floor_objects", self.floor_objects, 16),
+        ] {
+            if lo > hi || hi > most {
+                return bad(format!(
+                    "{name} = [{lo}, {hi}] must satisfy low <= high <= {most}"
+                ));
+            }
+        }
+        for (name, range, min, max) in [
+            ("camera_height_m", self.camera_height_m, 0.02, 2.0),
+            ("lens_fov_scale", self.lens_fov_scale, 0.5, 1.5),
+        ] {
+            if let Some([lo, hi]) = range
+                && !(lo.is_finite() && hi.is_finite() && min <= lo && lo <= hi && hi <= max)
+            {
+                return bad(format!(
+                    "{name} = [{lo}, {hi}] must satisfy {min} <= low <= high <= {max}"
+                ));
+            }
         }
         if let Some([lo, hi]) = self.camera_tilt_deg
             && !(lo.is_finite() && hi.is_finite() && -80.0 <= lo && lo <= hi && hi <= 80.0)
@@ -186,6 +243,10 @@ pub struct Look {
     pub glare: Option<Glare>,
     /// The camera's tilt below the horizontal, degrees (`None`: the configured camera's).
     pub tilt_deg: Option<f32>,
+    /// The camera's height, metres (`None`: the configured camera's).
+    pub height_m: Option<f32>,
+    /// The lens's field of view times this (`None`: the configured lens).
+    pub fov_scale: Option<f32>,
 }
 
 /// A bright Gaussian patch (a lamp's reflection on a glossy mat).
@@ -210,6 +271,8 @@ impl Look {
         gradient: [0.0, 0.0],
         glare: None,
         tilt_deg: None,
+        height_m: None,
+        fov_scale: None,
     };
 
     /// Draws a look from `cfg`'s ranges.
@@ -253,13 +316,18 @@ impl Look {
             peak: rng.random_range(0.2..0.8),
         });
         // Drawn last, and only when asked for, so every other draw stays as it was.
-        let tilt_deg = cfg.camera_tilt_deg.map(|[lo, hi]| {
-            if hi > lo {
-                rng.random_range(lo..hi)
-            } else {
-                lo
-            }
-        });
+        let mut within = |r: Option<[f32; 2]>| {
+            r.map(|[lo, hi]| {
+                if hi > lo {
+                    rng.random_range(lo..hi)
+                } else {
+                    lo
+                }
+            })
+        };
+        let tilt_deg = within(cfg.camera_tilt_deg);
+        let height_m = within(cfg.camera_height_m);
+        let fov_scale = within(cfg.lens_fov_scale);
         Self {
             gains,
             exposure,
@@ -270,6 +338,8 @@ impl Look {
             gradient,
             glare,
             tilt_deg,
+            height_m,
+            fov_scale,
         }
     }
 

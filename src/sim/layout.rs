@@ -34,6 +34,10 @@ pub struct LayoutConfig {
     pub lane_width_m: [f32; 2],
     /// Corner radii on the centre line, metres, least and most.
     pub corner_radius_m: [f32; 2],
+    /// Each corner's radius is at least this many lane widths, whatever
+    /// `corner_radius_m` draws: a wide road has wide corners. Above 1, the inside edge line
+    /// never folds, so `corner_radius_m` may start below the widest lane.
+    pub corner_lanes: f32,
     /// Number of corners, least and most (3..=12).
     pub corners: [u32; 2],
     /// Chance that a layout is driven clockwise.
@@ -50,6 +54,7 @@ impl Default for LayoutConfig {
             every_s: 20.0,
             lane_width_m: [0.09, 0.20],
             corner_radius_m: [0.25, 0.50],
+            corner_lanes: 1.25,
             corners: [5, 8],
             clockwise_probability: 0.5,
             drive_lane: DriveLane::Right,
@@ -85,10 +90,16 @@ impl LayoutConfig {
         };
         range("lane_width_m", self.lane_width_m, 0.03, 0.30)?;
         range("corner_radius_m", self.corner_radius_m, 0.10, 0.80)?;
-        if self.corner_radius_m[0] <= self.lane_width_m[1] {
+        if !(self.corner_lanes.is_finite() && (0.0..=4.0).contains(&self.corner_lanes)) {
+            return bad(format!(
+                "corner_lanes = {}: must be in 0..=4",
+                self.corner_lanes
+            ));
+        }
+        if self.corner_lanes <= 1.0 && self.corner_radius_m[0] <= self.lane_width_m[1] {
             return bad(format!(
                 "corner_radius_m's least {} must exceed lane_width_m's most {} (the road's \
-                 half width)",
+                 half width), or corner_lanes must be above 1",
                 self.corner_radius_m[0], self.lane_width_m[1]
             ));
         }
@@ -119,8 +130,12 @@ pub fn random_track<R: Rng + ?Sized>(
     rng: &mut R,
 ) -> Result<Track> {
     cfg.validate()?;
+    // The lane is drawn once, so wide roads, which fit a mat less often, come as often as
+    // narrow ones. Rounded as the track file writes it, so the corners' least radius is
+    // the file's.
+    let lane = (uniform(rng, cfg.lane_width_m) as f64 * 1e4).round() / 1e4;
     for _ in 0..MAX_DRAWS {
-        let Some(text) = draw_toml(cfg, mat, rng) else {
+        let Some(text) = draw_toml(cfg, lane, mat, rng) else {
             continue;
         };
         let Ok(track) = Track::from_toml(&text, "random layout") else {
@@ -133,19 +148,20 @@ pub fn random_track<R: Rng + ?Sized>(
         return Ok(if clockwise { track.reversed() } else { track });
     }
     Err(SimError::Invalid(format!(
-        "[sim.layouts]: no layout fits the mat in {MAX_DRAWS} draws; allow narrower lanes, \
-         smaller corners or fewer of them"
+        "[sim.layouts]: no layout with {lane:.3} m lanes fits the {:.2} x {:.2} m mat in \
+         {MAX_DRAWS} draws; allow narrower lanes, smaller corners or fewer of them",
+        mat.0, mat.1
     )))
 }
 
-/// One draw as a track file (counter-clockwise), or `None` where the corners do not fit
-/// their sides.
+/// One draw with `lane`-wide lanes as a track file (counter-clockwise), or `None` where the
+/// corners do not fit their sides.
 pub fn draw_toml<R: Rng + ?Sized>(
     cfg: &LayoutConfig,
+    lane: f64,
     mat: (f64, f64),
     rng: &mut R,
 ) -> Option<String> {
-    let lane = uniform(rng, cfg.lane_width_m) as f64;
     let n = rng.random_range(cfg.corners[0]..=cfg.corners[1]) as usize;
     let (mw, mh) = mat;
     // The road (two lanes and the edge line) keeps 5 cm and a little from the sides; a
@@ -215,11 +231,11 @@ fn fillet<R: Rng + ?Sized>(
         return None;
     }
     let mut radii: Vec<f64> = (0..n)
-        .map(|_| uniform(rng, cfg.corner_radius_m) as f64)
+        .map(|_| (uniform(rng, cfg.corner_radius_m) as f64).max(cfg.corner_lanes as f64 * lane))
         .collect();
     // Where two corners' arcs do not fit their side, both get tighter, down to the least
     // radius.
-    let least = cfg.corner_radius_m[0] as f64;
+    let least = (cfg.corner_radius_m[0] as f64).max(cfg.corner_lanes as f64 * lane);
     for i in 0..n {
         let j = (i + 1) % n;
         let (ti, tj) = ((turns[i].abs() / 2.0).tan(), (turns[j].abs() / 2.0).tan());
@@ -390,6 +406,51 @@ mod tests {
     }
 
     #[test]
+    fn wide_roads_have_wide_corners() {
+        // Roads of 0.10 to 0.50 m (two lanes of 0.05 to 0.25), each corner at least 1.5
+        // lanes round on the centre line, whatever corner_radius_m draws.
+        let cfg = LayoutConfig {
+            lane_width_m: [0.05, 0.25],
+            corner_radius_m: [0.15, 0.50],
+            corner_lanes: 1.5,
+            corners: [3, 6],
+            ..LayoutConfig::default()
+        };
+        cfg.validate().unwrap();
+        let (mut narrow, mut wide) = (0, 0);
+        for seed in 0..30 {
+            let t = random_track(&cfg, JETBOT_MAT_M, &mut ChaCha8Rng::seed_from_u64(seed))
+                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            let road = 2.0 * t.road_half_width();
+            assert!((0.10..=0.50 + 1e-4).contains(&road), "seed {seed}: {road}");
+            let least = (1.5 * t.lane_width()).max(0.15);
+            let steps = (t.length() / 0.01) as usize;
+            let max_curv = (0..steps)
+                .map(|k| t.curvature_at(t.length() * k as f32 / steps as f32).abs())
+                .fold(0.0f32, f32::max);
+            assert!(
+                max_curv <= 1.0 / least + 1e-3,
+                "seed {seed}: a {road:.2} m road turns at radius {:.3}",
+                1.0 / max_curv
+            );
+            assert!(clears_itself(&t), "seed {seed}");
+            narrow += usize::from(road < 0.2);
+            wide += usize::from(road > 0.4);
+        }
+        assert!(
+            narrow >= 3 && wide >= 3,
+            "{narrow} narrow, {wide} wide of 30"
+        );
+        // Without the lane rule, corners narrower than the widest lane would fold.
+        let folded = LayoutConfig {
+            corner_lanes: 1.0,
+            ..cfg
+        };
+        let e = folded.validate().unwrap_err().to_string();
+        assert!(e.contains("corner_lanes must be above 1"), "{e}");
+    }
+
+    #[test]
     fn layouts_drive_the_configured_lane() {
         let centre = LayoutConfig {
             drive_lane: DriveLane::Centre,
@@ -455,6 +516,7 @@ mod tests {
         // 2 * 0.09 + 0.05 = 0.23 m apart. Two long sides 0.22 m apart are refused.
         let cfg = LayoutConfig {
             corner_radius_m: [0.09, 0.09],
+            corner_lanes: 0.0,
             lane_width_m: [0.08, 0.08],
             ..LayoutConfig::default()
         };
@@ -472,6 +534,7 @@ mod tests {
         assert!(LayoutConfig::default().validate().is_ok());
         let bad = LayoutConfig {
             corner_radius_m: [0.15, 0.5],
+            corner_lanes: 1.0,
             ..LayoutConfig::default()
         };
         let e = bad.validate().unwrap_err().to_string();

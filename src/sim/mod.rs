@@ -23,6 +23,7 @@ pub mod demos;
 pub mod env;
 pub mod expert;
 pub mod flat_field;
+pub mod floor;
 pub mod layout;
 pub mod lens;
 pub mod odometry;

@@ -29,6 +29,7 @@ use tiny_skia::{
 };
 
 use super::camera::CameraModel;
+use super::floor::{Floor, FloorKind};
 use super::{PaintStroke, Pose2, SimError};
 
 /// Default texture resolution, texels per metre (2.5 mm texels).
@@ -152,6 +153,25 @@ impl MatTexture {
         mat_rgb: [u8; 3],
         floor_rgb: [u8; 3],
     ) -> Result<Self, SimError> {
+        Self::on_floor(
+            strokes,
+            mat_size,
+            px_per_m,
+            Some(mat_rgb),
+            &Floor::plain(floor_rgb),
+        )
+    }
+
+    /// [`Self::new`] on a textured `floor` (`sim::floor`), with the mat rectangle in
+    /// `mat_rgb` or, with `None`, no mat: the floor runs under the strokes (tape on a floor).
+    pub fn on_floor(
+        strokes: &[PaintStroke],
+        mat_size: (f32, f32),
+        px_per_m: f32,
+        mat_rgb: Option<[u8; 3]>,
+        floor: &Floor,
+    ) -> Result<Self, SimError> {
+        let floor_rgb = floor.base;
         let (mw, mh) = mat_size;
         if !(mw.is_finite() && mh.is_finite() && mw > 0.0 && mh > 0.0 && mw <= 50.0 && mh <= 50.0) {
             return Err(SimError::Invalid(format!(
@@ -180,7 +200,20 @@ impl MatTexture {
             .ok_or_else(|| SimError::Invalid("empty texture".into()))?;
         let mut pixmap = Pixmap::new(size.width(), size.height())
             .ok_or_else(|| SimError::Invalid(format!("cannot allocate a {w0} x {h0} pixmap")))?;
-        pixmap.fill(color(floor_rgb));
+        if floor.kind == FloorKind::Plain && floor.stains.is_empty() {
+            pixmap.fill(color(floor_rgb));
+        } else {
+            // Texel (i, r) (r from the top row) has its centre at world
+            // (ox + (i + 0.5) / ppm, oy + (h0 - r - 0.5) / ppm).
+            for (r, row) in pixmap.data_mut().chunks_exact_mut(w0 * 4).enumerate() {
+                let y = origin.1 + (h0 as f32 - r as f32 - 0.5) / px_per_m;
+                for (i, px) in row.chunks_exact_mut(4).enumerate() {
+                    let x = origin.0 + (i as f32 + 0.5) / px_per_m;
+                    let [cr, cg, cb] = floor.texel(x, y);
+                    px.copy_from_slice(&[cr, cg, cb, 255]);
+                }
+            }
+        }
         // World (x, y) -> pixmap pixel (x right, y down from the top row).
         let to_px = |x: f32, y: f32| {
             (
@@ -189,7 +222,9 @@ impl MatTexture {
             )
         };
         let (x0, y0) = to_px(0.0, mh);
-        if let Some(rect) = Rect::from_xywh(x0, y0, mw * px_per_m, mh * px_per_m) {
+        if let Some(mat_rgb) = mat_rgb
+            && let Some(rect) = Rect::from_xywh(x0, y0, mw * px_per_m, mh * px_per_m)
+        {
             pixmap.fill_rect(rect, &paint_of(mat_rgb), Transform::identity(), None);
         }
         for stroke in strokes {
@@ -229,7 +264,7 @@ impl MatTexture {
             origin,
             px_per_m,
             mat_size,
-            mat_rgb,
+            mat_rgb: mat_rgb.unwrap_or(floor_rgb),
             floor_rgb,
         })
     }
@@ -499,6 +534,8 @@ pub struct Renderer {
     wall_rows: Vec<[u8; 3]>,
     /// Per-pixel colours beyond the ground (RGB8, a whole frame), instead of `wall_rows`.
     backdrop: Option<Vec<u8>>,
+    /// RGBA8 over the rendered frame (`sim::scene`'s things in view), if any.
+    foreground: Option<Vec<u8>>,
 }
 
 /// The ground footprint of one pixel: the difference between the ground points of the
@@ -595,6 +632,7 @@ impl Renderer {
             wall_rgb: DEFAULT_WALL_RGB,
             wall_rows: Vec::new(),
             backdrop: None,
+            foreground: None,
         };
         renderer.set_wall_rgb(DEFAULT_WALL_RGB);
         Ok(renderer)
@@ -614,6 +652,7 @@ impl Renderer {
         self.rays = ray_table(&self.texture, &camera);
         self.camera = camera;
         self.backdrop = None;
+        self.foreground = None;
         self.set_wall_rgb(self.wall_rgb);
         Ok(())
     }
@@ -642,8 +681,19 @@ impl Renderer {
         mat_rgb: [u8; 3],
         floor_rgb: [u8; 3],
     ) -> Result<(), SimError> {
+        self.repaint_on_floor(strokes, Some(mat_rgb), &Floor::plain(floor_rgb))
+    }
+
+    /// [`Self::repaint`] on a textured floor, with or without a mat
+    /// ([`MatTexture::on_floor`]).
+    pub fn repaint_on_floor(
+        &mut self,
+        strokes: &[PaintStroke],
+        mat_rgb: Option<[u8; 3]>,
+        floor: &Floor,
+    ) -> Result<(), SimError> {
         let t = &self.texture;
-        self.texture = MatTexture::new(strokes, t.mat_size, t.px_per_m, mat_rgb, floor_rgb)?;
+        self.texture = MatTexture::on_floor(strokes, t.mat_size, t.px_per_m, mat_rgb, floor)?;
         Ok(())
     }
 
@@ -662,6 +712,24 @@ impl Renderer {
             )));
         }
         self.backdrop = image;
+        Ok(())
+    }
+
+    /// What stands in front of the camera: RGBA8, `width * height * 4` bytes, blended over
+    /// every rendered frame (`out = out * (1 - a) + rgb * a`), or `None` for nothing.
+    pub fn set_foreground(&mut self, image: Option<Vec<u8>>) -> Result<(), SimError> {
+        let need = self.camera.width as usize * self.camera.height as usize * 4;
+        if let Some(img) = &image
+            && img.len() != need
+        {
+            return Err(SimError::Invalid(format!(
+                "foreground of {} bytes for a {}x{} camera (needs {need})",
+                img.len(),
+                self.camera.width,
+                self.camera.height,
+            )));
+        }
+        self.foreground = image;
         Ok(())
     }
 
@@ -752,6 +820,9 @@ impl Renderer {
                 }
             }
         }
+        if let Some(fg) = &self.foreground {
+            blend_over(out, fg);
+        }
     }
 
     /// [`Self::render`] followed by [`apply_effects`].
@@ -764,6 +835,23 @@ impl Renderer {
     ) {
         self.render(pose, out);
         apply_effects(self.camera.width, self.camera.height, effects, rng, out);
+    }
+}
+
+/// Blends RGBA8 `over` onto RGB8 `rgb` of the same pixel count:
+/// `rgb = rgb * (1 - a) + over * a`, rounded; alpha 0 leaves the pixel as it is.
+pub fn blend_over(rgb: &mut [u8], over: &[u8]) {
+    for (px, o) in rgb.chunks_exact_mut(3).zip(over.chunks_exact(4)) {
+        match o[3] {
+            0 => {}
+            255 => px.copy_from_slice(&o[..3]),
+            a => {
+                let a = a as u32;
+                for k in 0..3 {
+                    px[k] = ((px[k] as u32 * (255 - a) + o[k] as u32 * a + 127) / 255) as u8;
+                }
+            }
+        }
     }
 }
 
@@ -1230,5 +1318,18 @@ mod tests {
         assert_eq!(img.into_raw(), rgb);
         assert!(write_png(&path, 5, 3, &rgb).is_err());
         assert!(write_png(&dir.path().join("no/such/dir/x.png"), 4, 3, &rgb).is_err());
+    }
+
+    #[test]
+    fn blend_over_worked_numbers() {
+        let mut rgb = vec![100, 200, 50, 10, 20, 30, 0, 0, 0];
+        let over = [0, 0, 0, 0, 255, 255, 255, 255, 0, 0, 0, 102];
+        blend_over(&mut rgb, &over);
+        // Alpha 0: unchanged; 255: replaced; 102 of black over 0 stays 0.
+        assert_eq!(rgb, [100, 200, 50, 255, 255, 255, 0, 0, 0]);
+        let mut grey = vec![200, 200, 200];
+        // 200 * (255 - 102) / 255 = 120.0 plus 10 * 102 / 255 = 4.0: 124.
+        blend_over(&mut grey, &[10, 10, 10, 102]);
+        assert_eq!(grey, [124, 124, 124]);
     }
 }

@@ -51,6 +51,21 @@ pub struct RoadPaint {
     pub centre_width_m: f32,
     /// Dash and gap lengths in metres; `None`: a solid line.
     pub centre_dash_m: Option<(f32, f32)>,
+    /// How each edge line is laid: `[at +half width, at -half width]` (the left and right
+    /// of the track's direction).
+    pub edges: [EdgeLine; 2],
+}
+
+/// How one edge line is laid: whole, missing, or broken into pieces (tape that peels).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EdgeLine {
+    Whole,
+    Missing,
+    /// Pieces of `piece_m` with gaps of `gap_m`, metres.
+    Broken {
+        piece_m: f32,
+        gap_m: f32,
+    },
 }
 
 impl RoadPaint {
@@ -62,6 +77,7 @@ impl RoadPaint {
         centre_rgb: Some(CENTRE_RGB),
         centre_width_m: CENTRE_LINE_WIDTH_M,
         centre_dash_m: Some(CENTRE_DASH_M),
+        edges: [EdgeLine::Whole; 2],
     };
 }
 
@@ -915,8 +931,15 @@ impl Track {
             out.push(stroke(0.0, (2.0 * half) as f32, rgb, None));
         }
         if let Some(rgb) = style.edge_rgb {
-            out.push(stroke(half, edge_w, rgb, None));
-            out.push(stroke(-half, edge_w, rgb, None));
+            for (lat, edge) in [half, -half].into_iter().zip(style.edges) {
+                match edge {
+                    EdgeLine::Whole => out.push(stroke(lat, edge_w, rgb, None)),
+                    EdgeLine::Missing => {}
+                    EdgeLine::Broken { piece_m, gap_m } => {
+                        out.push(stroke(lat, edge_w, rgb, Some((piece_m, gap_m))))
+                    }
+                }
+            }
         }
         if let Some(rgb) = style.centre_rgb
             && !self.single_lane

@@ -120,8 +120,8 @@ pub struct World {
     layouts: Option<Layouts>,
     /// The track changed since the renderer's mat was painted.
     track_changed: bool,
-    /// The configured camera's tilt, for looks that do not draw one.
-    base_tilt_deg: f32,
+    /// The configured camera, for looks that do not draw a tilt, height or lens.
+    base_camera: super::camera::CameraModel,
 }
 
 /// The layout generator's settings, its own random stream (so turning layouts on leaves
@@ -168,9 +168,9 @@ impl World {
         seed: u64,
     ) -> Self {
         let start = track.lane_pose_at(0.0);
-        let base_tilt_deg = match &frames {
-            FrameMaker::Render(r) => r.camera().tilt_deg,
-            FrameMaker::Replay(s) => s.camera().tilt_deg,
+        let base_camera = match &frames {
+            FrameMaker::Render(r) => *r.camera(),
+            FrameMaker::Replay(s) => *s.camera(),
         };
         let mut w = Self {
             robot: Robot::new(robot, start),
@@ -189,7 +189,7 @@ impl World {
             painted: None,
             layouts: None,
             track_changed: false,
-            base_tilt_deg,
+            base_camera,
         };
         w.reset_at(0.0);
         w
@@ -229,8 +229,8 @@ impl World {
     /// Randomises the camera's look from now on (`None`: plain frames).
     pub fn set_appearance(&mut self, appearance: Option<Appearance>) {
         self.appearance = appearance;
-        if let Err(e) = self.tilt_camera() {
-            tracing::warn!("camera tilt: {e}; keeping the camera's tilt");
+        if let Err(e) = self.aim_camera() {
+            tracing::warn!("camera from the look: {e}; keeping the camera there is");
         }
     }
 
@@ -341,22 +341,24 @@ impl World {
         }
     }
 
-    /// Tilts the rendered camera as the current look says (back to the configured tilt
-    /// when the look draws none, or randomisation is off).
-    fn tilt_camera(&mut self) -> Result<(), super::SimError> {
+    /// Aims the rendered camera as the current look says: its tilt, height and lens
+    /// spread (back to the configured camera's where the look draws none, or randomisation
+    /// is off).
+    fn aim_camera(&mut self) -> Result<(), super::SimError> {
         let FrameMaker::Render(r) = &mut self.frames else {
             return Ok(());
         };
-        let tilt = self
-            .appearance
-            .as_ref()
-            .and_then(|a| a.look().tilt_deg)
-            .unwrap_or(self.base_tilt_deg);
-        if r.camera().tilt_deg != tilt {
-            let camera = super::camera::CameraModel {
-                tilt_deg: tilt,
-                ..*r.camera()
-            };
+        let base = self.base_camera;
+        let look = self.appearance.as_ref().map(|a| *a.look());
+        let fov = look.and_then(|l| l.fov_scale).unwrap_or(1.0);
+        let camera = super::camera::CameraModel {
+            tilt_deg: look.and_then(|l| l.tilt_deg).unwrap_or(base.tilt_deg),
+            height_m: look.and_then(|l| l.height_m).unwrap_or(base.height_m),
+            hfov_deg: base.hfov_deg * fov,
+            fisheye_fov_deg: base.fisheye_fov_deg * fov,
+            ..*r.camera()
+        };
+        if *r.camera() != camera {
             // The backdrop is dropped with the old camera; a new look brings a new scene,
             // whose backdrop show_scene draws for this camera.
             r.set_camera(camera)?;
@@ -372,9 +374,9 @@ impl World {
         }
         let generation = self.appearance.as_ref().map(|a| a.generation());
         let new_look = generation.is_some() && self.painted != generation;
-        if new_look && let Err(e) = self.tilt_camera() {
+        if new_look && let Err(e) = self.aim_camera() {
             // The range was validated; keep the camera there is.
-            tracing::warn!("camera tilt: {e}; keeping the camera's tilt");
+            tracing::warn!("camera from the look: {e}; keeping the camera there is");
         }
         if !new_look && !self.track_changed {
             return;
@@ -389,12 +391,7 @@ impl World {
         }
         self.track_changed = false;
         let done = match scene {
-            Some(scene) => {
-                let strokes = self.track.paint_with(&scene.paint);
-                let backdrop = scene.backdrop(r.camera());
-                r.repaint(&strokes, scene.mat_rgb, scene.floor_rgb)
-                    .and_then(|()| r.set_backdrop(Some(backdrop)))
-            }
+            Some(scene) => scene.show(r, &self.track),
             None => r.repaint(
                 &self.track.paint(),
                 super::scene::SIM_MAT_RGB,

@@ -434,7 +434,8 @@ fn scene_randomisation_repaints_the_road_at_each_episode_and_repeats_for_a_seed(
         "[sim.appearance]\nenabled = true\npink_probability = 0.0\ntint = 0.0\n\
          exposure = [1.0, 1.0]\ngamma = [1.0, 1.0]\nvignette = [0.0, 0.0]\n\
          noise_std = [0.0, 0.0]\nblur_probability = 0.0\nlight_gradient = [0.0, 0.0]\n\
-         glare_probability = 0.0\nredraw_every_frames = 0\nclutter = [3, 3]",
+         glare_probability = 0.0\nredraw_every_frames = 0\nclutter = [3, 3]\n\
+         floor_objects = [0, 0]\nshadow_probability = 0.0\ncables = [0, 0]",
     );
     let episodes = |cfg: &Config| {
         let mut rig = setup::build(cfg).unwrap();
@@ -467,7 +468,12 @@ fn scene_randomisation_repaints_the_road_at_each_episode_and_repeats_for_a_seed(
         );
     }
     use jetpilot::sim::scene::RoadStyle;
-    for style in [RoadStyle::Sim, RoadStyle::Print, RoadStyle::Tape] {
+    for style in [
+        RoadStyle::Sim,
+        RoadStyle::Print,
+        RoadStyle::Tape,
+        RoadStyle::Painted,
+    ] {
         assert!(
             styles.contains(&Some(style)),
             "12 episodes show every style: {styles:?}"
@@ -484,6 +490,42 @@ fn scene_randomisation_repaints_the_road_at_each_episode_and_repeats_for_a_seed(
         px.iter().all(|&c| c < 80),
         "printed road at ({u}, {v}): {px:?}"
     );
+}
+
+#[test]
+fn height_and_lens_ranges_move_the_camera_with_each_look() {
+    // JetBot kits mount the camera 8-15 cm up, behind lenses of 160-200 degrees.
+    let cfg = small_config(
+        "[sim.appearance]\nenabled = true\nredraw_every_frames = 0\n\
+         camera_height_m = [0.08, 0.15]\nlens_fov_scale = [0.9, 1.1]",
+    );
+    let base = cfg.sim.camera;
+    let mut rig = setup::build(&cfg).unwrap();
+    let mut rgb = vec![0u8; 48 * 48 * 3];
+    let mut heights = Vec::new();
+    for k in 0..6 {
+        rig.world.reset_at(0.3 * k as f32);
+        rig.world.observe(&mut rgb);
+        let cam = rig.world.camera();
+        let look = *rig.world.appearance().unwrap().look();
+        assert_eq!(Some(cam.height_m), look.height_m, "episode {k}");
+        let k_fov = look.fov_scale.unwrap();
+        assert!((0.9..1.1).contains(&k_fov), "episode {k}: {k_fov}");
+        assert!((cam.hfov_deg - base.hfov_deg * k_fov).abs() < 1e-4);
+        assert!((cam.fisheye_fov_deg - base.fisheye_fov_deg * k_fov).abs() < 1e-4);
+        assert_eq!(
+            cam.tilt_deg, base.tilt_deg,
+            "no tilt range: the configured tilt"
+        );
+        heights.push(cam.height_m);
+    }
+    assert!(
+        heights.iter().all(|h| (0.08..0.15).contains(h)),
+        "{heights:?}"
+    );
+    // Randomisation off: back to the configured camera.
+    rig.world.set_appearance(None);
+    assert_eq!(*rig.world.camera(), base);
 }
 
 #[test]
