@@ -537,13 +537,12 @@ impl Scene {
                         // A frame bar down the middle and across.
                         let mid_u = (u - (win.u[0] + win.u[1]) / 2.0).abs() * (w as f32) < 1.0;
                         let mid_v = (v - (win.v[0] + win.v[1]) / 2.0 * horizon).abs() < 1.0;
-                        inside.then(|| {
-                            if mid_u || mid_v {
-                                self.wall_rgb
-                            } else {
-                                win.rgb
-                            }
-                        })
+                        let rgb = if mid_u || mid_v {
+                            self.wall_rgb
+                        } else {
+                            win.rgb
+                        };
+                        inside.then_some(rgb)
                     })
                 };
                 let rgb = match block {
