@@ -23,7 +23,7 @@
 # was chosen on jetbot_xy_mat alone; jetbot_xy_carpet is reported, never used to choose
 # (docs/results/zero-shot.md). BIN skips the build (it needs the `train` feature). Writes
 # OUT/policy.onnx, OUT/world.toml, OUT/drive_xy/ and OUT/scatter_xy/ (the sim frames),
-# OUT/score_<set>/ and OUT/summary.txt. About 20 minutes on 2 cores with a release build.
+# OUT/score_<set>/ and OUT/summary.txt. About 7 minutes on 2 cores with a release build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
