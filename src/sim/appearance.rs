@@ -249,6 +249,15 @@ pub struct Look {
     pub fov_scale: Option<f32>,
 }
 
+/// A value drawn uniformly from `[lo, hi)`, or `lo` where the range is empty.
+pub(super) fn draw_in<R: Rng + ?Sized>(rng: &mut R, [lo, hi]: [f32; 2]) -> f32 {
+    if hi > lo {
+        rng.random_range(lo..hi)
+    } else {
+        lo
+    }
+}
+
 /// A bright Gaussian patch (a lamp's reflection on a glossy mat).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Glare {
@@ -277,13 +286,7 @@ impl Look {
 
     /// Draws a look from `cfg`'s ranges.
     pub fn draw<R: Rng + ?Sized>(cfg: &AppearanceConfig, rng: &mut R) -> Self {
-        let mut range = |[lo, hi]: [f32; 2]| {
-            if hi > lo {
-                rng.random_range(lo..hi)
-            } else {
-                lo
-            }
-        };
+        let mut range = |r: [f32; 2]| draw_in(rng, r);
         let exposure = range(cfg.exposure);
         let gamma = range(cfg.gamma);
         let vignette = range(cfg.vignette);
@@ -316,15 +319,7 @@ impl Look {
             peak: rng.random_range(0.2..0.8),
         });
         // Drawn last, and only when asked for, so every other draw stays as it was.
-        let mut within = |r: Option<[f32; 2]>| {
-            r.map(|[lo, hi]| {
-                if hi > lo {
-                    rng.random_range(lo..hi)
-                } else {
-                    lo
-                }
-            })
-        };
+        let mut within = |r: Option<[f32; 2]>| r.map(|r| draw_in(rng, r));
         let tilt_deg = within(cfg.camera_tilt_deg);
         let height_m = within(cfg.camera_height_m);
         let fov_scale = within(cfg.lens_fov_scale);

@@ -33,7 +33,7 @@ use rand::Rng;
 
 use super::PaintStroke;
 use super::SimError;
-use super::appearance::AppearanceConfig;
+use super::appearance::{AppearanceConfig, draw_in};
 use super::camera::CameraModel;
 use super::floor::{Floor, FloorKind};
 use super::render::Renderer;
@@ -121,14 +121,6 @@ pub struct Scene {
     pub windows: Vec<Window>,
     pub blocks: Vec<Block>,
     pub things: Vec<Thing>,
-}
-
-fn range<R: Rng + ?Sized>(rng: &mut R, [lo, hi]: [f32; 2]) -> f32 {
-    if hi > lo {
-        rng.random_range(lo..hi)
-    } else {
-        lo
-    }
 }
 
 fn count<R: Rng + ?Sized>(rng: &mut R, [lo, hi]: [u32; 2]) -> u32 {
@@ -301,7 +293,7 @@ impl Scene {
 
     /// Draws a scene from `cfg`'s probabilities and ranges.
     pub fn draw<R: Rng + ?Sized>(cfg: &AppearanceConfig, rng: &mut R) -> Scene {
-        let k = range(rng, cfg.line_width_scale);
+        let k = draw_in(rng, cfg.line_width_scale);
         let j = cfg.colour_jitter;
         let pick: f32 = rng.random();
         let (p, t, q) = (
