@@ -6,6 +6,7 @@ mod bench_cpu;
 mod bench_peer;
 mod bench_sim;
 mod camera;
+mod check_views;
 mod image;
 mod interventions;
 mod model;

@@ -16,6 +16,8 @@ use jetpilot::sim::odometry::birdseye::ViewGrid;
 use jetpilot::sim::odometry::output::Labels;
 use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, Vehicle, check, output};
 
+use super::check_views;
+
 /// Which motion model gives the prior.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum VehicleArg {
@@ -85,6 +87,14 @@ pub struct PosesArgs {
     /// frames without it (about twice the time).
     #[arg(long)]
     flat_field: bool,
+    /// Also judge the poses by the frames themselves: predict frame t+k (k = 1, 5, 10)
+    /// from frame t through the poses and the ground plane, and score the prediction
+    /// against the real frame t+k on the floor (PSNR, SSIM), beside the identity (frame t
+    /// itself) and the prior alone (and the truth, with --check). Writes
+    /// `check-views.csv` and `check-views.png` into --out (with --check and no --out:
+    /// beside the trace).
+    #[arg(long)]
+    check_views: bool,
 }
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
@@ -250,6 +260,26 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         est.poses.len().saturating_sub(1)
     );
     print_sources(&est, took);
+    if args.check_views {
+        let prior = odometry::estimate(
+            &tub,
+            &cfg.sim.camera,
+            vehicle,
+            check_views::prior_alone(params),
+            Pose2::default(),
+            ReadOptions::default(),
+        )?;
+        check_views::run(
+            &tub,
+            &cfg.sim.camera,
+            vehicle,
+            params,
+            &est,
+            &prior,
+            None,
+            &out,
+        )?;
+    }
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
 }
@@ -318,11 +348,7 @@ fn check_against_truth(
         blur: args.blur,
     };
     let est = odometry::estimate(tub, &sim.camera, vehicle, params, start, opts)?;
-    let mut wheels_only = params;
-    wheels_only.fusion.min_texture = f32::INFINITY;
-    wheels_only.calibrate = false;
-    wheels_only.flat_field = false;
-    wheels_only.chassis.find = Some(false);
+    let wheels_only = check_views::prior_alone(params);
     let base = odometry::estimate(
         tub,
         &sim.camera,
@@ -370,6 +396,29 @@ fn check_against_truth(
         output::write_csv(&est, &out.join("poses.csv"))?;
         println!("{n} records with the estimated poses -> {}", out.display());
         print_replay_use(out);
+    }
+    if args.check_views {
+        let dir = match &args.out {
+            Some(out) => {
+                std::fs::create_dir_all(out)
+                    .with_context(|| format!("creating {}", out.display()))?;
+                out.clone()
+            }
+            None => png
+                .parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .map_or_else(|| PathBuf::from("."), Path::to_path_buf),
+        };
+        check_views::run(
+            tub,
+            &sim.camera,
+            vehicle,
+            params,
+            &est,
+            &base,
+            Some(&truth),
+            &dir,
+        )?;
     }
     Ok(ExitCode::SUCCESS)
 }

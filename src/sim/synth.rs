@@ -469,6 +469,27 @@ impl Synthesizer {
         pairs
     }
 
+    /// Per pixel of the view from `pose`, row-major: where its ground point lies in
+    /// recorded frame `index` (clamped to the recording), or `None` where the pixel sees no
+    /// ground or the point lies outside that frame. The pixels [`Self::synthesize_from`]
+    /// samples from the frame itself rather than filling or clamping.
+    pub fn sources(&self, index: usize, pose: &Pose2) -> Vec<Option<(f32, f32)>> {
+        let index = index.min(self.recording.frames.len() - 1);
+        let c = &self.recording.camera;
+        let (wf, hf) = (c.width as f32, c.height as f32);
+        let (s, co) = pose.heading.sin_cos();
+        let to_world = Matrix3::new(co, -s, pose.x, s, co, pose.y, 0.0, 0.0, 1.0);
+        let m = self.to_recorded[index] * to_world;
+        self.ground
+            .iter()
+            .map(|g| {
+                let [f, l] = (*g)?;
+                self.project(&m, f, l)
+                    .filter(|&(u, v)| u >= 0.0 && u <= wf && v >= 0.0 && v <= hf)
+            })
+            .collect()
+    }
+
     /// A ground point `(forward, left)` through `m` (robot ground -> recorded camera) to
     /// the recorded pixel; `None` behind the camera.
     fn project(&self, m: &Matrix3<f32>, f: f32, l: f32) -> Option<(f32, f32)> {

@@ -13,7 +13,7 @@ use crate::dataset::tub::{DriveMode, TubInputs, TubWriter};
 
 /// A floor of blobs on a 4 cm lattice, each of a grey drawn from its lattice cell (a
 /// hash), smoothly blended: texture at 1-5 cm in every direction.
-fn floor(x: f32, y: f32) -> f32 {
+pub(super) fn floor(x: f32, y: f32) -> f32 {
     let hash = |i: i32, j: i32| {
         let mut h = (i as u32).wrapping_mul(0x9E37_79B1) ^ (j as u32).wrapping_mul(0x85EB_CA77);
         h ^= h >> 15;
@@ -33,7 +33,7 @@ fn floor(x: f32, y: f32) -> f32 {
 
 /// The frame the camera sees from `pose`: the floor, sky (grey 200) above the horizon, and
 /// the chassis (grey 30) in the bottom 10 rows.
-fn render(camera: &CameraModel, pose: &Pose2) -> Vec<u8> {
+pub(super) fn render(camera: &CameraModel, pose: &Pose2) -> Vec<u8> {
     let (w, h) = (camera.width, camera.height);
     let mut rgb = Vec::with_capacity((w * h * 3) as usize);
     for v in 0..h {

@@ -26,6 +26,7 @@ pub mod fuse;
 pub mod mask;
 pub mod output;
 pub mod register;
+pub mod views;
 pub mod wheels;
 
 use std::sync::Arc;

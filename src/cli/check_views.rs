@@ -1,0 +1,147 @@
+//! `jetpilot poses --check-views`: the estimated poses judged by the frames themselves
+//! ([`odometry::views`]): frame t+k predicted from frame t through the poses and the ground
+//! plane, scored against the real frame, beside the identity and the prior alone (and the
+//! truth, with `--check`). Writes `check-views.csv` and `check-views.png`.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+use jetpilot::dataset::tub::{TubReader, TubRecord};
+use jetpilot::sim::Pose2;
+use jetpilot::sim::camera::CameraModel;
+use jetpilot::sim::odometry::views::{self, PoseSet};
+use jetpilot::sim::odometry::{self, Estimate, OdometryParams, Vehicle};
+
+/// A pair is scored where at least this share of the camera's floor pixels is seen by
+/// every pose set in both frames.
+const MIN_FLOOR: f32 = 0.1;
+
+/// The odometer's settings with vision switched off: the prior alone, as configured.
+pub fn prior_alone(params: OdometryParams) -> OdometryParams {
+    let mut p = params;
+    p.fusion.min_texture = f32::INFINITY;
+    p.calibrate = false;
+    p.flat_field = false;
+    p.chassis.find = Some(false);
+    p
+}
+
+/// Runs the check of `est` (and `prior`, the prior alone; `truth` where known) on `tub`'s
+/// frames and writes the table and the strip into `dir`.
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    tub: &TubReader,
+    camera: &CameraModel,
+    vehicle: Vehicle,
+    params: OdometryParams,
+    est: &Estimate,
+    prior: &Estimate,
+    truth: Option<&HashMap<u64, Pose2>>,
+    dir: &Path,
+) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
+    let frames: Vec<Option<Arc<Vec<u8>>>> = est
+        .poses
+        .iter()
+        .map(|p| {
+            let rec = by_index.get(&p.index)?;
+            let (w, h, rgb) = tub.load_rgb(rec).ok()?;
+            ((w, h) == (camera.width, camera.height)).then(|| Arc::new(rgb))
+        })
+        .collect();
+    let records: Vec<&TubRecord> = est
+        .poses
+        .iter()
+        .filter_map(|p| by_index.get(&p.index).copied())
+        .collect();
+    let mut warnings = Vec::new();
+    let mask = odometry::chassis_mask(
+        tub,
+        &records,
+        camera,
+        &vehicle,
+        &params.chassis,
+        &mut warnings,
+    );
+    let prior_poses: HashMap<u64, Pose2> = prior.poses.iter().map(|p| (p.index, p.pose)).collect();
+    let mut sets = vec![PoseSet {
+        name: "estimate".into(),
+        poses: est.poses.iter().map(|p| p.pose).collect(),
+    }];
+    let aligned = |name: &str, from: &HashMap<u64, Pose2>| -> anyhow::Result<PoseSet> {
+        let poses = est
+            .poses
+            .iter()
+            .map(|p| {
+                from.get(&p.index)
+                    .copied()
+                    .with_context(|| format!("{name}: no pose for record {}", p.index))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok(PoseSet {
+            name: name.into(),
+            poses,
+        })
+    };
+    sets.push(aligned("prior alone", &prior_poses)?);
+    if let Some(t) = truth {
+        sets.push(aligned("truth", t)?);
+    }
+    let check = views::check_views(
+        camera,
+        &frames,
+        mask.as_ref(),
+        &sets,
+        &views::STEPS,
+        MIN_FLOOR,
+    )?;
+    let csv = dir.join("check-views.csv");
+    std::fs::write(&csv, check.csv()).with_context(|| format!("writing {}", csv.display()))?;
+    println!(
+        "view check:      frame t+k predicted from frame t through the poses and the ground plane, scored on the floor ({:.1} s)",
+        started.elapsed().as_secs_f32()
+    );
+    println!("{}", check.table());
+    for r in &check.rows {
+        let beats: Vec<String> = check
+            .methods
+            .iter()
+            .zip(&r.beats_identity)
+            .skip(1)
+            .map(|(m, b)| format!("{m} {:.0} %", b * 100.0))
+            .collect();
+        println!(
+            "  k = {:>2}: pairs whose SSIM beats the identity's: {}",
+            r.k,
+            beats.join(", ")
+        );
+    }
+    let verdict = if check.best_everywhere(1) {
+        "the estimate beats every other column at every k"
+    } else {
+        "the estimate does NOT beat every other column at every k"
+    };
+    println!("  {verdict}; table: {}", csv.display());
+    if let Some(strip) = &check.strip {
+        let png = dir.join("check-views.png");
+        strip
+            .save(&png)
+            .with_context(|| format!("writing {}", png.display()))?;
+        let ts: Vec<String> = check
+            .strip_pairs
+            .iter()
+            .map(|(k, t)| format!("{t}->{}", t + k))
+            .collect();
+        println!(
+            "  strip: {} (rows: frames {}; columns: frame t, {} predicted, real t+k, then |difference| x3 for identity, {}; dark blue: not scored)",
+            png.display(),
+            ts.join(", "),
+            check.methods[1..].join(", "),
+            check.methods[1..].join(", ")
+        );
+    }
+    Ok(())
+}
