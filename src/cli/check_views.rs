@@ -1,7 +1,9 @@
 //! `jetpilot poses --check-views`: the estimated poses judged by the frames themselves
 //! ([`odometry::views`]): frame t+k predicted from frame t through the poses and the ground
 //! plane, scored against the real frame, beside the identity and the prior alone (and the
-//! truth, with `--check`). Writes `check-views.csv` and `check-views.png`.
+//! truth, with `--check`). Then loop closure ([`odometry::loops`]): where a view is seen
+//! again, how far apart each pose set puts the two frames. Writes `check-views.csv` and
+//! `check-views.png`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -11,12 +13,19 @@ use anyhow::Context;
 use jetpilot::dataset::tub::{TubReader, TubRecord};
 use jetpilot::sim::Pose2;
 use jetpilot::sim::camera::CameraModel;
+use jetpilot::sim::odometry::loops;
 use jetpilot::sim::odometry::views::{self, PoseSet};
 use jetpilot::sim::odometry::{self, Estimate, OdometryParams, Vehicle};
 
 /// A pair is scored where at least this share of the camera's floor pixels is seen by
 /// every pose set in both frames.
 const MIN_FLOOR: f32 = 0.1;
+
+/// The floor scored: up to this many times as far ahead as the odometry's grid reaches.
+const FLOOR_RANGE: f32 = 1.5;
+
+/// A view seen again counts as a loop only this long after it was first seen.
+const LOOP_MIN_GAP_S: f64 = 2.0;
 
 /// The odometer's settings with vision switched off: the prior alone, as configured.
 pub fn prior_alone(params: OdometryParams) -> OdometryParams {
@@ -26,6 +35,42 @@ pub fn prior_alone(params: OdometryParams) -> OdometryParams {
     p.flat_field = false;
     p.chassis.find = Some(false);
     p
+}
+
+/// The frames of `est`'s records, in its order (`None`: unreadable, or not the camera's
+/// size).
+pub fn load_frames(
+    tub: &TubReader,
+    camera: &CameraModel,
+    est: &Estimate,
+) -> Vec<Option<Arc<Vec<u8>>>> {
+    let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
+    est.poses
+        .iter()
+        .map(|p| {
+            let rec = by_index.get(&p.index)?;
+            let (w, h, rgb) = tub.load_rgb(rec).ok()?;
+            ((w, h) == (camera.width, camera.height)).then(|| Arc::new(rgb))
+        })
+        .collect()
+}
+
+/// Frames that see a view seen at least [`LOOP_MIN_GAP_S`] before ([`loops::find_loops`]).
+pub fn loop_matches(
+    frames: &[Option<Arc<Vec<u8>>>],
+    camera: &CameraModel,
+    est: &Estimate,
+) -> Vec<loops::LoopMatch> {
+    let thumbs: Vec<Option<Vec<f32>>> = frames
+        .iter()
+        .map(|f| {
+            f.as_ref().and_then(|px| {
+                loops::thumbnail(px, camera.width as usize, camera.height as usize)
+            })
+        })
+        .collect();
+    let times: Vec<f64> = est.poses.iter().map(|p| p.time_s).collect();
+    loops::find_loops(&thumbs, &times, LOOP_MIN_GAP_S)
 }
 
 /// Runs the check of `est` (and `prior`, the prior alone; `truth` where known) on `tub`'s
@@ -42,16 +87,9 @@ pub fn run(
     dir: &Path,
 ) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
+    let max_forward_m = params.grid.forward_m.1 * FLOOR_RANGE;
     let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
-    let frames: Vec<Option<Arc<Vec<u8>>>> = est
-        .poses
-        .iter()
-        .map(|p| {
-            let rec = by_index.get(&p.index)?;
-            let (w, h, rgb) = tub.load_rgb(rec).ok()?;
-            ((w, h) == (camera.width, camera.height)).then(|| Arc::new(rgb))
-        })
-        .collect();
+    let frames = load_frames(tub, camera, est);
     let records: Vec<&TubRecord> = est
         .poses
         .iter()
@@ -96,6 +134,7 @@ pub fn run(
         mask.as_ref(),
         &sets,
         &views::STEPS,
+        max_forward_m,
         MIN_FLOOR,
     )?;
     let csv = dir.join("check-views.csv");
@@ -125,6 +164,13 @@ pub fn run(
         "the estimate does NOT beat every other column at every k"
     };
     println!("  {verdict}; table: {}", csv.display());
+    let matches = loop_matches(&frames, camera, est);
+    println!(
+        "loop closure:    frames that see a view seen at least {LOOP_MIN_GAP_S} s before, and how far apart the poses put them"
+    );
+    for set in &sets {
+        println!("  {:<12} {}", set.name, loops::closure(&matches, &set.poses));
+    }
     if let Some(strip) = &check.strip {
         let png = dir.join("check-views.png");
         strip

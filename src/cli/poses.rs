@@ -95,6 +95,12 @@ pub struct PosesArgs {
     /// beside the trace).
     #[arg(long)]
     check_views: bool,
+    /// Calibrate how much the prior turns from the drive's loops: where the camera sees a
+    /// view again, the car has turned whole turns. The scale is fitted on the loops that
+    /// start in the first half of the drive, the estimate is run again with it, and the
+    /// loop closure of the second half is reported before and after (the held-out check).
+    #[arg(long)]
+    turn_from_loops: bool,
 }
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
@@ -240,6 +246,11 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         Pose2::default(),
         ReadOptions::default(),
     )?;
+    let (est, vehicle) = if args.turn_from_loops {
+        turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est)?
+    } else {
+        (est, vehicle)
+    };
     let took = started.elapsed().as_secs_f32();
     for w in &est.warnings {
         tracing::warn!("{w}");
@@ -282,6 +293,49 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     }
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--turn-from-loops`: the turn scale fitted on the loops of the drive's first half, the
+/// estimate again with it, and the second half's closure before and after.
+fn turn_from_loops(
+    tub: &TubReader,
+    camera: &CameraModel,
+    vehicle: Vehicle,
+    params: OdometryParams,
+    est: odometry::Estimate,
+) -> anyhow::Result<(odometry::Estimate, Vehicle)> {
+    let frames = check_views::load_frames(tub, camera, &est);
+    let matches = check_views::loop_matches(&frames, camera, &est);
+    let half = est.poses.len() / 2;
+    let (fit, held): (Vec<_>, Vec<_>) = matches.iter().partition(|m| m.a < half);
+    let poses = |e: &odometry::Estimate| -> Vec<Pose2> { e.poses.iter().map(|p| p.pose).collect() };
+    let Some((scale, n)) = odometry::loops::turn_scale(&fit, &poses(&est)) else {
+        println!(
+            "turn from loops: no view of the first half is seen again a turn later; the prior's turn is kept"
+        );
+        return Ok((est, vehicle));
+    };
+    let turned = vehicle.with_turn(scale);
+    let again = odometry::estimate(
+        tub,
+        camera,
+        turned,
+        params,
+        Pose2::default(),
+        ReadOptions::default(),
+    )?;
+    println!(
+        "turn from loops: x{scale:.3} from {n} loops starting in the first half; the estimate again with it"
+    );
+    println!(
+        "  second half, before: {}",
+        odometry::loops::closure(&held, &poses(&est))
+    );
+    println!(
+        "  second half, after:  {}",
+        odometry::loops::closure(&held, &poses(&again))
+    );
+    Ok((again, turned))
 }
 
 /// Where the frames' motions came from, each reason counted, and the confidence.

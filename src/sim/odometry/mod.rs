@@ -25,6 +25,7 @@ pub mod check;
 pub mod fuse;
 pub mod mask;
 pub mod output;
+pub mod loops;
 pub mod register;
 pub mod views;
 pub mod wheels;
@@ -107,6 +108,22 @@ impl Vehicle {
             Vehicle::Wheels(robot)
         } else {
             Vehicle::Car(car)
+        }
+    }
+
+    /// The same vehicle turning `scale` times as much for the same commands (the wheel
+    /// base divided by it; the car's curvatures multiplied).
+    pub fn with_turn(self, scale: f32) -> Vehicle {
+        match self {
+            Vehicle::Wheels(mut r) => {
+                r.wheel_base_m /= scale;
+                Vehicle::Wheels(r)
+            }
+            Vehicle::Car(mut c) => {
+                c.curvature_per_unit *= scale;
+                c.curvature_offset *= scale;
+                Vehicle::Car(c)
+            }
         }
     }
 

@@ -13,7 +13,9 @@
 //! other pose set passed in (the prior alone, the truth on a simulated drive). Every pose
 //! set of a pair is scored on the same pixels: floor the camera sees in frame `t + k`, not
 //! in the chassis mask, whose ground point every set places inside frame `t` and outside
-//! its chassis. A pair with less such floor than `min_floor` of the ground pixels is
+//! its chassis, and no farther ahead than asked (the floor the odometry resolves, by
+//! default: beyond it a real floor ends, walls stand and the ground plane fails). A pair
+//! with less such floor than `min_floor` of the ground pixels is
 //! skipped and counted. Pure apart from nothing: the strip is an image in memory.
 
 use std::sync::Arc;
@@ -211,13 +213,15 @@ pub fn masked_ssim(a: &[f32], b: &[f32], valid: &[bool], w: usize, h: usize) -> 
 /// Predicts frame `t + k` from frame `t` for every `k` of `steps` and every `t`, for the
 /// identity and each pose set, and scores the predictions against the real frames (see
 /// the module's doc). `frames[i]` is frame `i`'s RGB8 pixels at the camera's size, `None`
-/// where its image is missing; every set has a pose per frame.
+/// where its image is missing; every set has a pose per frame. Only floor up to
+/// `max_forward_m` ahead of the robot's origin is scored.
 pub fn check_views(
     camera: &CameraModel,
     frames: &[Option<Arc<Vec<u8>>>],
     mask: Option<&PixelMask>,
     sets: &[PoseSet],
     steps: &[usize],
+    max_forward_m: f32,
     min_floor: f32,
 ) -> Result<ViewCheck, SimError> {
     let (w, h) = (camera.width as usize, camera.height as usize);
@@ -268,11 +272,18 @@ pub fn check_views(
             Synthesizer::new(recording, 1.0).map(|s| s.with_fill_from_earlier(false))
         })
         .collect::<Result<Vec<_>, _>>()?;
-    // The pixels that see floor at all (the identity's sources: every pixel its own).
+    // The pixels that see floor within `max_forward_m` (beyond it, a real floor's edge,
+    // walls and the things on it break the ground plane).
     let ground: Vec<bool> = synths[0]
         .sources(0, &sets[0].poses[0])
         .iter()
-        .map(Option::is_some)
+        .enumerate()
+        .map(|(i, at)| {
+            at.is_some()
+                && camera
+                    .pixel_to_robot_ground((i % w) as f32 + 0.5, (i / w) as f32 + 0.5)
+                    .is_some_and(|(f, _)| f <= max_forward_m)
+        })
         .collect();
     let ground_pixels = ground.iter().filter(|g| **g).count().max(1);
     let methods: Vec<String> = std::iter::once("identity".to_string())
@@ -520,7 +531,7 @@ mod tests {
         ];
         let chassis = PixelMask::below_row(160, 120, 110);
         let check =
-            check_views(&camera, &frames, Some(&chassis), &sets, &STEPS, 0.05).expect("a check");
+            check_views(&camera, &frames, Some(&chassis), &sets, &STEPS, 1.0, 0.05).expect("a check");
         eprintln!("{}", check.table());
         assert_eq!(check.methods, ["identity", "truth", "wrong"]);
         for r in &check.rows {
@@ -561,18 +572,19 @@ mod tests {
             None,
             std::slice::from_ref(&set),
             &STEPS,
+            1.0,
             0.1,
         )
         .expect_err("a short frame");
         assert!(e.to_string().contains("frame 0 has 10 bytes"), "{e}");
         let frames = vec![Some(Arc::new(vec![0u8; 160 * 120 * 3])); 2];
-        let e = check_views(&camera, &frames, None, &[set], &STEPS, 0.1).expect_err("one pose");
+        let e = check_views(&camera, &frames, None, &[set], &STEPS, 1.0, 0.1).expect_err("one pose");
         assert!(
             e.to_string()
                 .contains("`estimate` has 1 poses for 2 frames"),
             "{e}"
         );
-        let e = check_views(&camera, &frames, None, &[], &STEPS, 0.1).expect_err("no sets");
+        let e = check_views(&camera, &frames, None, &[], &STEPS, 1.0, 0.1).expect_err("no sets");
         assert!(e.to_string().contains("at least one pose set"), "{e}");
     }
 }
