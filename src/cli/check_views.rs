@@ -39,11 +39,7 @@ pub fn prior_alone(params: OdometryParams) -> OdometryParams {
 
 /// The frames of `est`'s records, in its order (`None`: unreadable, or not the camera's
 /// size).
-pub fn load_frames(
-    tub: &TubReader,
-    camera: &CameraModel,
-    est: &Estimate,
-) -> Vec<Option<Arc<Vec<u8>>>> {
+pub fn load_frames(tub: &TubReader, camera: &CameraModel, est: &Estimate) -> Vec<views::Frame> {
     let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
     est.poses
         .iter()
@@ -57,16 +53,15 @@ pub fn load_frames(
 
 /// Frames that see a view seen at least [`LOOP_MIN_GAP_S`] before ([`loops::find_loops`]).
 pub fn loop_matches(
-    frames: &[Option<Arc<Vec<u8>>>],
+    frames: &[views::Frame],
     camera: &CameraModel,
     est: &Estimate,
 ) -> Vec<loops::LoopMatch> {
     let thumbs: Vec<Option<Vec<f32>>> = frames
         .iter()
         .map(|f| {
-            f.as_ref().and_then(|px| {
-                loops::thumbnail(px, camera.width as usize, camera.height as usize)
-            })
+            f.as_ref()
+                .and_then(|px| loops::thumbnail(px, camera.width as usize, camera.height as usize))
         })
         .collect();
     let times: Vec<f64> = est.poses.iter().map(|p| p.time_s).collect();
@@ -169,7 +164,11 @@ pub fn run(
         "loop closure:    frames that see a view seen at least {LOOP_MIN_GAP_S} s before, and how far apart the poses put them"
     );
     for set in &sets {
-        println!("  {:<12} {}", set.name, loops::closure(&matches, &set.poses));
+        println!(
+            "  {:<12} {}",
+            set.name,
+            loops::closure(&matches, &set.poses)
+        );
     }
     if let Some(strip) = &check.strip {
         let png = dir.join("check-views.png");

@@ -134,6 +134,21 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
         el.2,
         tl.2
     );
+    // --turn-from-loops on a drive without a loop says so and keeps the prior's turn.
+    let o = jetpilot(&[
+        "poses",
+        "--tub",
+        &bare.display().to_string(),
+        "--turn-from-loops",
+        "--out",
+        &dir.path().join("lap-loops").display().to_string(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("no view of the first half is seen again a turn later"),
+        "{stdout}"
+    );
     // Every record kept its other keys.
     let first = est.records().next().unwrap();
     assert!(first.wheels.is_some());
@@ -219,11 +234,23 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
     let (psnr, ssim) = (4, 5);
     for k in ["1", "5", "10"] {
         // 40.5 / 39.2 / 37.7 dB against 29.7 / 21.5 / 21.2 when this was written.
-        assert!(score(k, "truth", psnr) > score(k, "identity", psnr) + 5.0, "{csv}");
-        assert!(score(k, "truth", ssim) > score(k, "identity", ssim), "{csv}");
-        assert!(score(k, "estimate", psnr) > score(k, "identity", psnr) + 5.0, "{csv}");
+        assert!(
+            score(k, "truth", psnr) > score(k, "identity", psnr) + 5.0,
+            "{csv}"
+        );
+        assert!(
+            score(k, "truth", ssim) > score(k, "identity", ssim),
+            "{csv}"
+        );
+        assert!(
+            score(k, "estimate", psnr) > score(k, "identity", psnr) + 5.0,
+            "{csv}"
+        );
     }
-    assert!(stdout.contains("pairs whose SSIM beats the identity's"), "{stdout}");
+    assert!(
+        stdout.contains("pairs whose SSIM beats the identity's"),
+        "{stdout}"
+    );
 
     // --check --out also writes the estimate as a tub (every 2nd frame here), from the
     // true first pose, without the truth's rewards and target labels: the same pipeline

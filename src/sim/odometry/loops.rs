@@ -81,8 +81,8 @@ pub fn thumbnail(rgb: &[u8], width: usize, height: usize) -> Option<Vec<f32>> {
         .map(|(s, &n)| s / n.max(1) as f32)
         .collect();
     let mean = cells.iter().sum::<f32>() / cells.len() as f32;
-    let sd = (cells.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / cells.len() as f32)
-        .sqrt();
+    let sd =
+        (cells.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / cells.len() as f32).sqrt();
     (sd > 1e-3).then(|| cells.iter().map(|v| (v - mean) / sd).collect())
 }
 
@@ -208,10 +208,10 @@ pub fn turn_scale(matches: &[LoopMatch], poses: &[Pose2]) -> Option<(f32, usize)
 
 #[cfg(test)]
 mod tests {
+    use super::super::super::camera::CameraModel;
     use super::super::ackermann::{CarOdometry, CarParams};
     use super::super::car_drive_test::render;
     use super::super::compose;
-    use super::super::super::camera::CameraModel;
     use super::*;
 
     #[test]
@@ -227,7 +227,10 @@ mod tests {
         assert_eq!(t.len(), 16 * 12);
         let mean = t.iter().sum::<f32>() / t.len() as f32;
         let var = t.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / t.len() as f32;
-        assert!(mean.abs() < 1e-5 && (var - 1.0).abs() < 1e-4, "{mean} {var}");
+        assert!(
+            mean.abs() < 1e-5 && (var - 1.0).abs() < 1e-4,
+            "{mean} {var}"
+        );
         // Twice as bright, plus 10: the same thumbnail.
         let bright: Vec<u8> = rgb.iter().map(|v| v * 2 + 10).collect();
         let tb = thumbnail(&bright, w, h).expect("a thumbnail");
@@ -285,7 +288,10 @@ mod tests {
         assert!(s.gap_deg > 30.0 && s.gap_m > 0.5, "{s}");
         // The loops say how much more it should turn: 1 / 0.9.
         let (scale, n) = turn_scale(&matches, &short).expect("a scale");
-        assert!((scale - 1.0 / 0.9).abs() < 0.01 && n == matches.len(), "{scale} {n}");
+        assert!(
+            (scale - 1.0 / 0.9).abs() < 0.01 && n == matches.len(),
+            "{scale} {n}"
+        );
         let (scale, _) = turn_scale(&matches, &truth).expect("a scale");
         assert!((scale - 1.0).abs() < 0.01, "{scale}");
         assert_eq!(turn_scale(&[], &truth), None);

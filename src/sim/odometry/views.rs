@@ -40,6 +40,18 @@ const C2: f64 = 58.5225;
 /// A perfect prediction's PSNR is reported as this (dB) rather than infinity.
 const PSNR_CAP_DB: f64 = 99.0;
 
+/// A frame's RGB8 pixels, shared; `None` where its image is missing.
+pub type Frame = Option<Arc<Vec<u8>>>;
+
+/// A pair shown in the strip: the step, frame `t`, every method's prediction (the
+/// identity first) and the scored floor.
+struct Shown {
+    k: usize,
+    t: usize,
+    predictions: Vec<Vec<u8>>,
+    scored: Vec<bool>,
+}
+
 /// Poses for every frame, named (`estimate`, `prior alone`, `truth`).
 #[derive(Debug, Clone)]
 pub struct PoseSet {
@@ -217,7 +229,7 @@ pub fn masked_ssim(a: &[f32], b: &[f32], valid: &[bool], w: usize, h: usize) -> 
 /// `max_forward_m` ahead of the robot's origin is scored.
 pub fn check_views(
     camera: &CameraModel,
-    frames: &[Option<Arc<Vec<u8>>>],
+    frames: &[Frame],
     mask: Option<&PixelMask>,
     sets: &[PoseSet],
     steps: &[usize],
@@ -291,7 +303,7 @@ pub fn check_views(
         .collect();
     let shown_step = steps.get(steps.len() / 2).copied();
     let mut rows = Vec::with_capacity(steps.len());
-    let mut shown: Vec<(usize, usize, Vec<Vec<u8>>, Vec<bool>)> = Vec::new();
+    let mut shown: Vec<Shown> = Vec::new();
     let mut predicted = vec![vec![0u8; len]; sets.len()];
     for &k in steps {
         let (mut sum, mut wins) = (
@@ -349,15 +361,20 @@ pub fn check_views(
                 }
             }
             if Some(k) == shown_step {
-                candidates.push((t, predictions.iter().map(|p| p.to_vec()).collect(), valid));
+                candidates.push(Shown {
+                    k,
+                    t,
+                    predictions: predictions.iter().map(|p| p.to_vec()).collect(),
+                    scored: valid,
+                });
             }
         }
         if !candidates.is_empty() {
             let n = candidates.len();
             let picks: Vec<usize> = (0..4.min(n)).map(|i| (2 * i + 1) * n / 8).collect();
-            for (i, (t, preds, valid)) in candidates.into_iter().enumerate() {
+            for (i, pair) in candidates.into_iter().enumerate() {
                 if picks.contains(&i) {
-                    shown.push((k, t, preds, valid));
+                    shown.push(pair);
                 }
             }
         }
@@ -376,7 +393,7 @@ pub fn check_views(
             beats_identity: wins.iter().map(|&v| per(v as f64)).collect(),
         });
     }
-    let strip_pairs = shown.iter().map(|(k, t, _, _)| (*k, *t)).collect();
+    let strip_pairs = shown.iter().map(|p| (p.k, p.t)).collect();
     let strip = (!shown.is_empty()).then(|| draw_strip(camera, frames, &shown));
     Ok(ViewCheck {
         methods,
@@ -388,14 +405,10 @@ pub fn check_views(
 
 /// The strip of [`ViewCheck::strip`]: a row per shown pair `(k, t, predictions (identity
 /// first), scored floor)`.
-fn draw_strip(
-    camera: &CameraModel,
-    frames: &[Option<Arc<Vec<u8>>>],
-    shown: &[(usize, usize, Vec<Vec<u8>>, Vec<bool>)],
-) -> RgbImage {
+fn draw_strip(camera: &CameraModel, frames: &[Frame], shown: &[Shown]) -> RgbImage {
     const GAP: u32 = 4;
     let (w, h) = (camera.width, camera.height);
-    let methods = shown.first().map_or(1, |s| s.2.len());
+    let methods = shown.first().map_or(1, |s| s.predictions.len());
     // t, the sets' predictions, the real t+k, every method's difference.
     let columns = 1 + (methods - 1) + 1 + methods;
     let mut img = RgbImage::from_pixel(
@@ -403,7 +416,16 @@ fn draw_strip(
         shown.len() as u32 * (h + GAP),
         Rgb([255, 255, 255]),
     );
-    for (row, (k, t, preds, valid)) in shown.iter().enumerate() {
+    for (
+        row,
+        Shown {
+            k,
+            t,
+            predictions: preds,
+            scored: valid,
+        },
+    ) in shown.iter().enumerate()
+    {
         let Some(real) = frames.get(t + k).and_then(|f| f.as_ref()) else {
             continue;
         };
@@ -489,7 +511,7 @@ mod tests {
 
     /// A car drive over the textured floor of the car-drive test: its frames, and the
     /// true poses.
-    fn drive(camera: &CameraModel, frames: usize) -> (Vec<Option<Arc<Vec<u8>>>>, Vec<Pose2>) {
+    fn drive(camera: &CameraModel, frames: usize) -> (Vec<Frame>, Vec<Pose2>) {
         let mut car = CarOdometry::new(CarParams {
             speed_per_throttle_mps: 2.8,
             curvature_per_unit: -1.25,
@@ -530,8 +552,8 @@ mod tests {
             },
         ];
         let chassis = PixelMask::below_row(160, 120, 110);
-        let check =
-            check_views(&camera, &frames, Some(&chassis), &sets, &STEPS, 1.0, 0.05).expect("a check");
+        let check = check_views(&camera, &frames, Some(&chassis), &sets, &STEPS, 1.0, 0.05)
+            .expect("a check");
         eprintln!("{}", check.table());
         assert_eq!(check.methods, ["identity", "truth", "wrong"]);
         for r in &check.rows {
@@ -578,7 +600,8 @@ mod tests {
         .expect_err("a short frame");
         assert!(e.to_string().contains("frame 0 has 10 bytes"), "{e}");
         let frames = vec![Some(Arc::new(vec![0u8; 160 * 120 * 3])); 2];
-        let e = check_views(&camera, &frames, None, &[set], &STEPS, 1.0, 0.1).expect_err("one pose");
+        let e =
+            check_views(&camera, &frames, None, &[set], &STEPS, 1.0, 0.1).expect_err("one pose");
         assert!(
             e.to_string()
                 .contains("`estimate` has 1 poses for 2 frames"),
