@@ -103,6 +103,9 @@ pub struct PosesArgs {
     turn_from_loops: bool,
 }
 
+/// Below this [`odometry::calibrate::turn_agreement`] slope, the frames turn the other way.
+const REVERSED_BELOW: f64 = -0.2;
+
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
 fn print_calibration(est: &odometry::Estimate) {
     if let Some(n) = est.masked_pixels {
@@ -132,6 +135,16 @@ fn print_calibration(est: &odometry::Estimate) {
                 ": estimated again without them"
             } else {
                 ": not used"
+            }
+        );
+    }
+    if let Some((slope, n)) = est.turn_agreement {
+        println!(
+            "turn agreement:  vision turns x{slope:.2} of the prior ({n} turning frames){}",
+            if slope < REVERSED_BELOW {
+                ": the frames turn the OTHER way from the commands. The steering's sign looks reversed ([sim.car] curvature_per_unit, or the wheels' left/right), or the camera's picture is mirrored"
+            } else {
+                ""
             }
         );
     }

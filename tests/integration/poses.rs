@@ -93,6 +93,7 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(stdout.contains("records with poses"), "{stdout}");
+    assert!(!stdout.contains("the OTHER way"), "{stdout}");
     assert_eq!(snapshot(&bare), before, "the original tub changed");
 
     let out = dir.path().join("lap-poses");

@@ -248,6 +248,30 @@ pub fn overconfidence(scatter: Option<f64>, reference: f64) -> f64 {
 /// The median of a chi-square with 3 degrees of freedom.
 const CHI2_3_MEDIAN: f64 = 2.366;
 
+/// A frame counts in [`turn_agreement`] where the prior turns at least this much
+/// (radians, about 1 degree).
+pub const MIN_TURN_RAD: f32 = 0.0175;
+
+/// How vision's turn follows the prior's over a calibration pass: the least-squares slope
+/// of vision's yaw on the prior's (through the origin), over converged registrations whose
+/// prior turns at least [`MIN_TURN_RAD`], and how many counted (`None` under
+/// [`MIN_FRAMES`]). Near 1 they agree; below 0 the frames turn the other way from the
+/// commands: the steering's sign is reversed (the car's `curvature_per_unit`), or the
+/// camera's picture is mirrored.
+pub fn turn_agreement(samples: &[Sample]) -> Option<(f64, usize)> {
+    let turning: Vec<(f64, f64)> = samples
+        .iter()
+        .filter(|s| s.vision.converged && s.prior.yaw.abs() >= MIN_TURN_RAD)
+        .map(|s| (f64::from(s.prior.yaw), f64::from(s.vision.motion.yaw)))
+        .collect();
+    if turning.len() < MIN_FRAMES {
+        return None;
+    }
+    let pp: f64 = turning.iter().map(|(p, _)| p * p).sum();
+    let pv: f64 = turning.iter().map(|(p, v)| p * v).sum();
+    Some((pv / pp, turning.len()))
+}
+
 /// How far vision's own motions (the calibration pass: no pull towards the wheels) lie
 /// from the wheels', in units of the uncertainty vision claims: the median over the
 /// registered frames of `dᵀ I d / 2.366` (2.366 is the median of a chi-square with 3
@@ -313,6 +337,30 @@ mod tests {
                 converged: true,
             },
         }
+    }
+
+    #[test]
+    fn turn_agreement_is_the_slope_of_visions_turn_on_the_priors() {
+        // 30 turning frames where vision turns half as much the other way, and 10 frames
+        // whose prior turns under a degree (left out, whatever vision says).
+        let mut samples: Vec<Sample> = (0..30)
+            .map(|i| {
+                let yaw = 0.02 + 0.002 * i as f32;
+                let prior = Motion::new(0.05, 0.0, if i % 2 == 0 { yaw } else { -yaw });
+                let vision = Motion::new(0.05, 0.0, -0.5 * prior.yaw);
+                sample(prior, vision, [1e4; 3])
+            })
+            .collect();
+        samples.extend((0..10).map(|_| {
+            sample(
+                Motion::new(0.05, 0.0, 0.01),
+                Motion::new(0.05, 0.0, 0.5),
+                [1e4; 3],
+            )
+        }));
+        let (slope, n) = turn_agreement(&samples).expect("enough frames");
+        assert!((slope + 0.5).abs() < 1e-6 && n == 30, "{slope} {n}");
+        assert_eq!(turn_agreement(&samples[..19]), None, "under MIN_FRAMES");
     }
 
     #[test]

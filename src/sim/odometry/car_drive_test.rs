@@ -157,6 +157,21 @@ fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
         est.scales, est.car
     );
     assert_eq!(est.poses.len(), 80);
+    // Vision turns with the commands (the prior turns 1.6 times too much: about 0.6)...
+    let (slope, n) = est.turn_agreement.expect("turning frames");
+    assert!((0.4..0.9).contains(&slope), "{slope} over {n}");
+    // ...and against them when the prior's steering sign is reversed.
+    let reversed = estimate(
+        &tub,
+        &camera,
+        vehicle.with_turn(-1.0),
+        params,
+        Pose2::default(),
+        ReadOptions::default(),
+    )
+    .expect("an estimate");
+    let (slope, _) = reversed.turn_agreement.expect("turning frames");
+    assert!(slope < -0.2, "{slope}");
     assert!(d.final_error_pct < 5.0 && d.heading_error_deg < 5.0, "{d}");
     assert!(
         d.final_error_m < b.final_error_m / 3.0,

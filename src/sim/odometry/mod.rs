@@ -354,6 +354,9 @@ pub struct Estimate {
     pub masked_pixels: Option<usize>,
     /// Vision's scatter about the wheels ([`calibrate::scatter`]).
     pub scatter: Option<f64>,
+    /// How vision's turn follows the prior's in the calibration pass
+    /// ([`calibrate::turn_agreement`]): slope and frames.
+    pub turn_agreement: Option<(f64, usize)>,
     /// The prior's weight the fused pass used (`params.fusion.prior_weight`, raised by
     /// `scatter_ref`).
     pub prior_weight: f32,
@@ -505,7 +508,7 @@ fn estimate_once(
     flat: Option<&FlatField>,
 ) -> Result<Estimate, SimError> {
     let mut warnings = Vec::new();
-    let (scales, scatter) = if params.calibrate {
+    let (scales, scatter, turn_agreement) = if params.calibrate {
         let mut odo = setup.odometer(params, start).calibrating();
         pass(
             tub,
@@ -522,9 +525,13 @@ fn estimate_once(
             Vehicle::Wheels(_) => calibrate::fit(odo.samples(), overconfidence),
             Vehicle::Car(_) => calibrate::fit_car(odo.samples(), overconfidence),
         };
-        (Some(scales), scatter)
+        (
+            Some(scales),
+            scatter,
+            calibrate::turn_agreement(odo.samples()),
+        )
     } else {
-        (None, None)
+        (None, None, None)
     };
     let mut params = params;
     params.fusion.prior_weight =
@@ -548,6 +555,7 @@ fn estimate_once(
         car: odo.car_params(),
         masked_pixels: setup.mask.map(PixelMask::count),
         scatter,
+        turn_agreement,
         prior_weight: params.fusion.prior_weight,
         warnings,
         flat_field: None,
