@@ -101,6 +101,11 @@ pub struct PosesArgs {
     /// loop closure of the second half is reported before and after (the held-out check).
     #[arg(long)]
     turn_from_loops: bool,
+    /// Keep the prior's turn sign as configured even where the frames turn the other way
+    /// (the `turn agreement` line below -0.2). By default the estimate is then run again
+    /// with the sign flipped, and a line says so.
+    #[arg(long)]
+    keep_turn_sign: bool,
 }
 
 /// Below this [`odometry::calibrate::turn_agreement`] slope, the frames turn the other way.
@@ -259,6 +264,16 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         Pose2::default(),
         ReadOptions::default(),
     )?;
+    let (est, params) = fix_turn_sign(
+        &args,
+        &tub,
+        &cfg.sim.camera,
+        vehicle,
+        params,
+        est,
+        Pose2::default(),
+        ReadOptions::default(),
+    )?;
     let (est, vehicle) = if args.turn_from_loops {
         turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est)?
     } else {
@@ -306,6 +321,36 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     }
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
+}
+
+/// Where vision turns the other way from the commands (the `turn agreement` slope below
+/// [`REVERSED_BELOW`]) and `--keep-turn-sign` is not given: the estimate again with the
+/// commands' turn reversed, and a line that says so.
+#[allow(clippy::too_many_arguments)]
+fn fix_turn_sign(
+    args: &PosesArgs,
+    tub: &TubReader,
+    camera: &CameraModel,
+    vehicle: Vehicle,
+    params: OdometryParams,
+    est: odometry::Estimate,
+    start: Pose2,
+    opts: ReadOptions,
+) -> anyhow::Result<(odometry::Estimate, OdometryParams)> {
+    match est.turn_agreement {
+        Some((slope, n)) if slope < REVERSED_BELOW && !args.keep_turn_sign => {
+            println!(
+                "turn sign:       vision turns x{slope:.2} of the prior over {n} turning frames: the commands turn the other way here (a reversed steering sign, swapped wheels, or a mirrored camera); estimating again with their turn reversed (fix it in the config's [sim.car] curvature_per_unit or wiring, or pass --keep-turn-sign)"
+            );
+            let params = OdometryParams {
+                reverse_turn: !params.reverse_turn,
+                ..params
+            };
+            let again = odometry::estimate(tub, camera, vehicle, params, start, opts)?;
+            Ok((again, params))
+        }
+        _ => Ok((est, params)),
+    }
 }
 
 /// `--turn-from-loops`: the turn scale fitted on the loops of the drive's first half, the
@@ -415,6 +460,7 @@ fn check_against_truth(
         blur: args.blur,
     };
     let est = odometry::estimate(tub, &sim.camera, vehicle, params, start, opts)?;
+    let (est, params) = fix_turn_sign(args, tub, &sim.camera, vehicle, params, est, start, opts)?;
     let wheels_only = check_views::prior_alone(params);
     let base = odometry::estimate(
         tub,

@@ -432,3 +432,60 @@ fn the_cameras_fixed_effects_are_taken_out_before_registration() {
     let (p1, h1) = drift_line(&flat);
     assert!(p1 < 0.6 * p0 && h1 < 0.6 * h0, "{plain}\n{flat}");
 }
+
+/// A copy of `tub` with its wheels swapped (left for right): the commands turn the other
+/// way from the drive its frames show, as a robot wired left-for-right records.
+fn wheels_swapped(tub: &Path, out: &Path) {
+    let r = TubReader::open(tub).unwrap();
+    let inputs = TubInputs {
+        wheels: true,
+        pose: true,
+        ..TubInputs::default()
+    };
+    let mut w = TubWriter::create(out, &inputs, 1.7e9).unwrap();
+    for rec in r.records() {
+        let mut copy = rec.clone();
+        copy.wheels = rec.wheels.map(|(l, r)| (r, l));
+        w.append(&copy, &std::fs::read(r.image_path(rec)).unwrap())
+            .unwrap();
+    }
+    w.flush_and_sync().unwrap();
+}
+
+#[test]
+fn commands_that_turn_the_other_way_are_named_and_reversed() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = sim_tub(dir.path(), 14.0);
+    let swapped = dir.path().join("swapped");
+    wheels_swapped(&sim, &swapped);
+    let tub = swapped.display().to_string();
+    let png = dir.path().join("check.png").display().to_string();
+    let o = jetpilot(&["poses", "--tub", &tub, "--check", "--png", &png]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("turn sign:") && stdout.contains("turn the other way"),
+        "{stdout}"
+    );
+    let (fixed_pct, fixed_deg) = drift_line(&stdout);
+    assert!(fixed_pct < 5.0 && fixed_deg < 5.0, "{stdout}");
+    // Kept as configured, the estimate turns the wrong way.
+    let o = jetpilot(&[
+        "poses",
+        "--tub",
+        &tub,
+        "--check",
+        "--png",
+        &png,
+        "--keep-turn-sign",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!stdout.contains("turn sign:"), "{stdout}");
+    assert!(stdout.contains("the frames turn the OTHER way"), "{stdout}");
+    let (kept_pct, kept_deg) = drift_line(&stdout);
+    assert!(
+        kept_pct > 3.0 * fixed_pct && kept_deg > 3.0 * fixed_deg,
+        "{stdout}"
+    );
+}

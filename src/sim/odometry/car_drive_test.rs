@@ -164,8 +164,11 @@ fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
     let reversed = estimate(
         &tub,
         &camera,
-        vehicle.with_turn(-1.0),
-        params,
+        vehicle,
+        OdometryParams {
+            reverse_turn: true,
+            ..params
+        },
         Pose2::default(),
         ReadOptions::default(),
     )

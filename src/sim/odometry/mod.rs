@@ -74,6 +74,10 @@ pub struct OdometryParams {
     /// The chassis mask: pixels that show the vehicle itself are left out of
     /// registration ([`mask`]).
     pub chassis: ChassisConfig,
+    /// The commands turn the other way from the motion model: the wheels' duties are
+    /// swapped, a car's angle negated (a reversed steering sign, or a mirrored camera,
+    /// which [`calibrate::turn_agreement`] finds).
+    pub reverse_turn: bool,
 }
 
 impl Default for OdometryParams {
@@ -86,6 +90,7 @@ impl Default for OdometryParams {
             scatter_ref: 4.0,
             flat_field: false,
             chassis: ChassisConfig::default(),
+            reverse_turn: false,
         }
     }
 }
@@ -111,8 +116,9 @@ impl Vehicle {
         }
     }
 
-    /// The same vehicle turning `scale` times as much for the same commands (the wheel
-    /// base divided by it; the car's curvatures multiplied).
+    /// The same vehicle turning `scale` (> 0) times as much for the same commands (the
+    /// wheel base divided by it; the car's curvatures multiplied). The turn's sign is
+    /// [`OdometryParams::reverse_turn`].
     pub fn with_turn(self, scale: f32) -> Vehicle {
         match self {
             Vehicle::Wheels(mut r) => {
@@ -288,6 +294,14 @@ impl Odometer {
 
     /// The command `cmd` was held for `dt` seconds.
     pub fn drive(&mut self, cmd: Command, dt: f32) {
+        let cmd = match cmd {
+            _ if !self.params.reverse_turn => cmd,
+            Command::Wheels(l, r) => Command::Wheels(r, l),
+            Command::Steer { angle, throttle } => Command::Steer {
+                angle: -angle,
+                throttle,
+            },
+        };
         let m = self.prior.advance(cmd, dt);
         self.pending = then(&self.pending, &m);
     }
