@@ -90,7 +90,8 @@ pub struct PosesArgs {
     /// Also judge the poses by the frames themselves: predict frame t+k (k = 1, 5, 10)
     /// from frame t through the poses and the ground plane, and score the prediction
     /// against the real frame t+k on the floor (PSNR, SSIM), beside the identity (frame t
-    /// itself) and the prior alone (and the truth, with --check). Writes
+    /// itself) and the prior alone (and the truth, with --check); then the loop closure
+    /// (where a view is seen again, how far apart the poses put the two frames). Writes
     /// `check-views.csv` and `check-views.png` into --out (with --check and no --out:
     /// beside the trace).
     #[arg(long)]
