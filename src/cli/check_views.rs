@@ -14,15 +14,16 @@ use jetpilot::dataset::tub::{TubReader, TubRecord};
 use jetpilot::sim::Pose2;
 use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::odometry::loops;
+use jetpilot::sim::odometry::mask::PixelMask;
 use jetpilot::sim::odometry::views::{self, PoseSet};
 use jetpilot::sim::odometry::{self, Estimate, OdometryParams, Vehicle};
 
 /// A pair is scored where at least this share of the camera's floor pixels is seen by
 /// every pose set in both frames.
-const MIN_FLOOR: f32 = 0.1;
+pub const MIN_FLOOR: f32 = 0.1;
 
 /// The floor scored: up to this many times as far ahead as the odometry's grid reaches.
-const FLOOR_RANGE: f32 = 1.5;
+pub const FLOOR_RANGE: f32 = 1.5;
 
 /// A view seen again counts as a loop only this long after it was first seen.
 const LOOP_MIN_GAP_S: f64 = 2.0;
@@ -68,6 +69,31 @@ pub fn loop_matches(
     loops::find_loops(&thumbs, &times, LOOP_MIN_GAP_S)
 }
 
+/// The chassis mask `params` asks for, over `est`'s records.
+pub fn chassis_mask(
+    tub: &TubReader,
+    camera: &CameraModel,
+    vehicle: Vehicle,
+    params: OdometryParams,
+    est: &Estimate,
+) -> Option<PixelMask> {
+    let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
+    let records: Vec<&TubRecord> = est
+        .poses
+        .iter()
+        .filter_map(|p| by_index.get(&p.index).copied())
+        .collect();
+    let mut warnings = Vec::new();
+    odometry::chassis_mask(
+        tub,
+        &records,
+        camera,
+        &vehicle,
+        &params.chassis,
+        &mut warnings,
+    )
+}
+
 /// Runs the check of `est` (and `prior`, the prior alone; `truth` where known) on `tub`'s
 /// frames and writes the table and the strip into `dir`.
 #[allow(clippy::too_many_arguments)]
@@ -83,22 +109,8 @@ pub fn run(
 ) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let max_forward_m = params.grid.forward_m.1 * FLOOR_RANGE;
-    let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
     let frames = load_frames(tub, camera, est);
-    let records: Vec<&TubRecord> = est
-        .poses
-        .iter()
-        .filter_map(|p| by_index.get(&p.index).copied())
-        .collect();
-    let mut warnings = Vec::new();
-    let mask = odometry::chassis_mask(
-        tub,
-        &records,
-        camera,
-        &vehicle,
-        &params.chassis,
-        &mut warnings,
-    );
+    let mask = chassis_mask(tub, camera, vehicle, params, est);
     let prior_poses: HashMap<u64, Pose2> = prior.poses.iter().map(|p| (p.index, p.pose)).collect();
     let mut sets = vec![PoseSet {
         name: "estimate".into(),

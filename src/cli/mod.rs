@@ -14,6 +14,7 @@ mod model_optimize;
 mod model_quantize;
 mod panel;
 mod poses;
+mod poses_calibrate;
 // The book's generated pages, as the test suite builds (with the trainer's commands).
 #[cfg(all(test, feature = "train"))]
 mod reference;

@@ -16,7 +16,7 @@ use jetpilot::sim::odometry::birdseye::ViewGrid;
 use jetpilot::sim::odometry::output::Labels;
 use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, Vehicle, check, output};
 
-use super::check_views;
+use super::{check_views, poses_calibrate};
 
 /// Which motion model gives the prior.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -109,9 +109,6 @@ pub struct PosesArgs {
     keep_turn_sign: bool,
 }
 
-/// Below this [`odometry::calibrate::turn_agreement`] slope, the frames turn the other way.
-const REVERSED_BELOW: f64 = -0.2;
-
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
 fn print_calibration(est: &odometry::Estimate) {
     if let Some(n) = est.masked_pixels {
@@ -147,7 +144,7 @@ fn print_calibration(est: &odometry::Estimate) {
     if let Some((slope, n)) = est.turn_agreement {
         println!(
             "turn agreement:  vision turns x{slope:.2} of the prior ({n} turning frames){}",
-            if slope < REVERSED_BELOW {
+            if slope < poses_calibrate::REVERSED_BELOW {
                 ": the frames turn the OTHER way from the commands. The steering's sign looks reversed ([sim.car] curvature_per_unit, or the wheels' left/right), or the camera's picture is mirrored"
             } else {
                 ""
@@ -265,8 +262,8 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         Pose2::default(),
         ReadOptions::default(),
     )?;
-    let (est, params) = fix_turn_sign(
-        &args,
+    let (est, params) = poses_calibrate::fix_turn_sign(
+        args.keep_turn_sign,
         &tub,
         &cfg.sim.camera,
         vehicle,
@@ -276,7 +273,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         ReadOptions::default(),
     )?;
     let (est, vehicle) = if args.turn_from_loops {
-        turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est)?
+        poses_calibrate::turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est)?
     } else {
         (est, vehicle)
     };
@@ -322,79 +319,6 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     }
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
-}
-
-/// Where vision turns the other way from the commands (the `turn agreement` slope below
-/// [`REVERSED_BELOW`]) and `--keep-turn-sign` is not given: the estimate again with the
-/// commands' turn reversed, and a line that says so.
-#[allow(clippy::too_many_arguments)]
-fn fix_turn_sign(
-    args: &PosesArgs,
-    tub: &TubReader,
-    camera: &CameraModel,
-    vehicle: Vehicle,
-    params: OdometryParams,
-    est: odometry::Estimate,
-    start: Pose2,
-    opts: ReadOptions,
-) -> anyhow::Result<(odometry::Estimate, OdometryParams)> {
-    match est.turn_agreement {
-        Some((slope, n)) if slope < REVERSED_BELOW && !args.keep_turn_sign => {
-            println!(
-                "turn sign:       vision turns x{slope:.2} of the prior over {n} turning frames: the commands turn the other way here (a reversed steering sign, swapped wheels, or a mirrored camera); estimating again with their turn reversed (fix it in the config's [sim.car] curvature_per_unit or wiring, or pass --keep-turn-sign)"
-            );
-            let params = OdometryParams {
-                reverse_turn: !params.reverse_turn,
-                ..params
-            };
-            let again = odometry::estimate(tub, camera, vehicle, params, start, opts)?;
-            Ok((again, params))
-        }
-        _ => Ok((est, params)),
-    }
-}
-
-/// `--turn-from-loops`: the turn scale fitted on the loops of the drive's first half, the
-/// estimate again with it, and the second half's closure before and after.
-fn turn_from_loops(
-    tub: &TubReader,
-    camera: &CameraModel,
-    vehicle: Vehicle,
-    params: OdometryParams,
-    est: odometry::Estimate,
-) -> anyhow::Result<(odometry::Estimate, Vehicle)> {
-    let frames = check_views::load_frames(tub, camera, &est);
-    let matches = check_views::loop_matches(&frames, camera, &est);
-    let half = est.poses.len() / 2;
-    let (fit, held): (Vec<_>, Vec<_>) = matches.iter().partition(|m| m.a < half);
-    let poses = |e: &odometry::Estimate| -> Vec<Pose2> { e.poses.iter().map(|p| p.pose).collect() };
-    let Some((scale, n)) = odometry::loops::turn_scale(&fit, &poses(&est)) else {
-        println!(
-            "turn from loops: no view of the first half is seen again a turn later; the prior's turn is kept"
-        );
-        return Ok((est, vehicle));
-    };
-    let turned = vehicle.with_turn(scale);
-    let again = odometry::estimate(
-        tub,
-        camera,
-        turned,
-        params,
-        Pose2::default(),
-        ReadOptions::default(),
-    )?;
-    println!(
-        "turn from loops: x{scale:.3} from {n} loops starting in the first half; the estimate again with it"
-    );
-    println!(
-        "  second half, before: {}",
-        odometry::loops::closure(&held, &poses(&est))
-    );
-    println!(
-        "  second half, after:  {}",
-        odometry::loops::closure(&held, &poses(&again))
-    );
-    Ok((again, turned))
 }
 
 /// Where the frames' motions came from, each reason counted, and the confidence.
@@ -461,7 +385,16 @@ fn check_against_truth(
         blur: args.blur,
     };
     let est = odometry::estimate(tub, &sim.camera, vehicle, params, start, opts)?;
-    let (est, params) = fix_turn_sign(args, tub, &sim.camera, vehicle, params, est, start, opts)?;
+    let (est, params) = poses_calibrate::fix_turn_sign(
+        args.keep_turn_sign,
+        tub,
+        &sim.camera,
+        vehicle,
+        params,
+        est,
+        start,
+        opts,
+    )?;
     let wheels_only = check_views::prior_alone(params);
     let base = odometry::estimate(
         tub,
