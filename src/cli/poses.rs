@@ -98,9 +98,10 @@ pub struct PosesArgs {
     check_views: bool,
     /// Calibrate how much the prior turns from the drive's loops: where the camera sees a
     /// view again, the car has turned whole turns. The scale is fitted on the loops that
-    /// start in the first half of the drive, the estimate is run again with it, and the
-    /// loop closure of the second half is reported before and after (the held-out check).
-    #[arg(long)]
+    /// lie within the first half of the drive, the estimate is run again with it, and the
+    /// closure of the loops within the second half is reported before and after (the
+    /// held-out check).
+    #[arg(long, conflicts_with = "check")]
     turn_from_loops: bool,
     /// Keep the prior's turn sign as configured even where the frames turn the other way
     /// (the `turn agreement` line below -0.2). By default the estimate is then run again

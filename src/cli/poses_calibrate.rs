@@ -42,8 +42,10 @@ pub fn fix_turn_sign(
     }
 }
 
-/// `--turn-from-loops`: the turn scale fitted on the loops of the drive's first half, the
-/// estimate again with it, and the second half's closure before and after.
+/// `--turn-from-loops`: the turn scale fitted on the loops within the drive's first half,
+/// the estimate again with it, and the closure of the loops within the second half before
+/// and after. The re-estimate's own calibration may still refit the turn where vision
+/// measures it well (the `car model` / `wheel model` line prints what was used).
 pub fn turn_from_loops(
     tub: &TubReader,
     camera: &CameraModel,
@@ -54,11 +56,14 @@ pub fn turn_from_loops(
     let frames = check_views::load_frames(tub, camera, &est);
     let matches = check_views::loop_matches(&frames, camera, &est);
     let half = est.poses.len() / 2;
-    let (fit, held): (Vec<_>, Vec<_>) = matches.iter().partition(|m| m.a < half);
+    // Loops within the first half fit the scale, loops within the second check it, and
+    // loops across the middle take no part (they would tie the two together).
+    let fit: Vec<_> = matches.iter().copied().filter(|m| m.b < half).collect();
+    let held: Vec<_> = matches.iter().copied().filter(|m| m.a >= half).collect();
     let poses = |e: &odometry::Estimate| -> Vec<Pose2> { e.poses.iter().map(|p| p.pose).collect() };
     let Some((scale, n)) = odometry::loops::turn_scale(&fit, &poses(&est)) else {
         println!(
-            "turn from loops: no view of the first half is seen again a turn later; the prior's turn is kept"
+            "turn from loops: no view of the first half is seen again a turn later within it; the prior's turn is kept"
         );
         return Ok((est, vehicle));
     };
@@ -72,15 +77,21 @@ pub fn turn_from_loops(
         ReadOptions::default(),
     )?;
     println!(
-        "turn from loops: x{scale:.3} from {n} loops starting in the first half; the estimate again with it"
+        "turn from loops: x{scale:.3} from {n} loops within the first half; the estimate again with it"
     );
-    println!(
-        "  second half, before: {}",
-        odometry::loops::closure(&held, &poses(&est))
-    );
-    println!(
-        "  second half, after:  {}",
-        odometry::loops::closure(&held, &poses(&again))
-    );
+    if held.is_empty() {
+        println!(
+            "  no loop lies within the second half: the scale is not checked on frames it was not fitted on"
+        );
+    } else {
+        println!(
+            "  second half, before: {}",
+            odometry::loops::closure(&held, &poses(&est))
+        );
+        println!(
+            "  second half, after:  {}",
+            odometry::loops::closure(&held, &poses(&again))
+        );
+    }
     Ok((again, turned))
 }

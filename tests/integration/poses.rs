@@ -247,6 +247,10 @@ fn poses_for_a_tub_without_them_follow_the_true_path_and_the_original_is_untouch
             score(k, "estimate", psnr) > score(k, "identity", psnr) + 5.0,
             "{csv}"
         );
+        assert!(
+            score(k, "estimate", ssim) > score(k, "identity", ssim),
+            "{csv}"
+        );
     }
     assert!(
         stdout.contains("pairs whose SSIM beats the identity's"),

@@ -358,6 +358,14 @@ mod tests {
                 [1e4; 3],
             )
         }));
+        // A registration that did not converge takes no part either.
+        let mut lost = sample(
+            Motion::new(0.05, 0.0, 0.1),
+            Motion::new(0.05, 0.0, 0.1),
+            [1e4; 3],
+        );
+        lost.vision.converged = false;
+        samples.push(lost);
         let (slope, n) = turn_agreement(&samples).expect("enough frames");
         assert!((slope + 0.5).abs() < 1e-6 && n == 30, "{slope} {n}");
         assert_eq!(turn_agreement(&samples[..19]), None, "under MIN_FRAMES");

@@ -91,16 +91,19 @@ fn distance(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// For each frame, its distinct match among the frames at least `min_gap_s` later
-/// (`times_s` per frame); frames with no thumbnail take no part.
+/// (`times_s` per frame; frames past its end take no part, nor do frames with no
+/// thumbnail). A view that stays close from `min_gap_s` on (a car standing still) is not
+/// a revisit until it was left and came back.
 pub fn find_loops(thumbs: &[Option<Vec<f32>>], times_s: &[f64], min_gap_s: f64) -> Vec<LoopMatch> {
     let mut out = Vec::new();
     for (a, ta) in thumbs.iter().enumerate() {
         let Some(ta) = ta else { continue };
+        let Some(&t_a) = times_s.get(a) else { break };
         let later: Vec<(usize, f32)> = thumbs
             .iter()
             .enumerate()
             .skip(a + 1)
-            .filter(|(b, _)| times_s[*b] - times_s[a] >= min_gap_s)
+            .filter(|(b, _)| times_s.get(*b).is_some_and(|t| t - t_a >= min_gap_s))
             .filter_map(|(b, tb)| tb.as_ref().map(|tb| (b, distance(ta, tb))))
             .collect();
         if later.len() < 8 {
@@ -110,10 +113,12 @@ pub fn find_loops(thumbs: &[Option<Vec<f32>>], times_s: &[f64], min_gap_s: f64) 
         ds.sort_by(f32::total_cmp);
         let median = ds[ds.len() / 2];
         // The first revisit: the most similar frame of the first run of frames close
-        // enough, in time order.
+        // enough, in time order, after the view was left (a car standing still sees the
+        // same view 2 s later without having gone anywhere: that first run is skipped).
         let close = DISTINCT * median;
         let first = later
             .iter()
+            .skip_while(|(_, d)| *d <= close)
             .skip_while(|(_, d)| *d > close)
             .take_while(|(_, d)| *d <= close)
             .min_by(|x, y| x.1.total_cmp(&y.1));
@@ -189,7 +194,8 @@ fn turned(poses: &[Pose2]) -> Vec<f32> {
 
 /// How many times as much `poses` should turn for the matched frames to face the same way:
 /// each match spans whole turns (the nearest number to what the poses turned, at least
-/// one), and the median of `whole turns / turned` over the matches is the scale. `None`
+/// one, so poses more than half a turn off per loop are misread), and the median of
+/// `whole turns / turned` over the matches is the scale. `None`
 /// where no match spans at least half a turn. Also returns how many matches counted.
 pub fn turn_scale(matches: &[LoopMatch], poses: &[Pose2]) -> Option<(f32, usize)> {
     let cum = turned(poses);
@@ -251,8 +257,14 @@ mod tests {
         });
         let mut pose = Pose2::default();
         let (mut thumbs, mut truth, mut times) = (Vec::new(), Vec::new(), Vec::new());
-        for k in 0..220 {
-            if k > 0 {
+        // 3 s standing still first: the same view 2 s later is not a loop.
+        for k in 0..60 {
+            thumbs.push(thumbnail(&render(&camera, &pose), 160, 120));
+            truth.push(pose);
+            times.push(k as f64 * 0.05);
+        }
+        for k in 60..280 {
+            if k > 60 {
                 pose = compose(&pose, &car.advance(-1.0, 0.25, 0.05));
             }
             let rgb = render(&camera, &pose);
@@ -260,13 +272,24 @@ mod tests {
             truth.push(pose);
             times.push(k as f64 * 0.05);
         }
-        let matches = find_loops(&thumbs, &times, 2.0);
-        // Frames 0..76 are seen again one lap later, give or take a frame.
+        let matches = find_loops(&thumbs, &times[..times.len() - 1], 2.0);
+        assert!(
+            matches.iter().all(|m| m.b < times.len() - 1),
+            "past the times"
+        );
+        // Frames 0..76 of the drive (and the still frames, whose view the drive comes
+        // back to) are seen again one lap after the car set off, give or take a frame.
         assert!(matches.len() >= 60, "{} matches", matches.len());
         assert!(
-            matches.iter().all(|m| (m.b - m.a).abs_diff(144) <= 1),
+            matches
+                .iter()
+                .all(|m| (m.b - m.a.max(60)).abs_diff(144) <= 1),
             "{:?}",
-            matches.iter().map(|m| m.b - m.a).collect::<Vec<_>>()
+            matches.iter().map(|m| (m.a, m.b)).collect::<Vec<_>>()
+        );
+        assert!(
+            matches.iter().any(|m| m.a < 60),
+            "the still frames' view comes back"
         );
         // Measured: 77 matches 144 frames apart; 0.013 m and 1.0 degrees with the truth.
         let c = closure(&matches, &truth);

@@ -16,7 +16,7 @@
 //! its chassis, and no farther ahead than asked (the floor the odometry resolves, by
 //! default: beyond it a real floor ends, walls stand and the ground plane fails). A pair
 //! with less such floor than `min_floor` of the ground pixels is
-//! skipped and counted. Pure apart from nothing: the strip is an image in memory.
+//! skipped and counted. Pure: the strip is an image in memory.
 
 use std::sync::Arc;
 
@@ -74,7 +74,7 @@ pub struct StepRow {
     /// Pairs scored, and pairs skipped (an image missing, or too little common floor).
     pub pairs: usize,
     pub skipped: usize,
-    /// Mean over the scored pairs.
+    /// Mean over the scored pairs (NaN with none).
     pub mean: Vec<Score>,
     /// Fraction of the scored pairs whose SSIM beats the identity's (the identity's own
     /// entry is 0).
@@ -96,14 +96,16 @@ pub struct ViewCheck {
 }
 
 impl ViewCheck {
-    /// Whether the method at column `m` has the best mean PSNR and SSIM of all at every
-    /// step with scored pairs (and there is at least one).
-    pub fn best_everywhere(&self, m: usize) -> bool {
+    /// Whether the method at column `m` has a higher mean PSNR and a higher mean SSIM than
+    /// each of the columns `others` at every step with scored pairs (and there is one).
+    pub fn beats(&self, m: usize, others: &[usize]) -> bool {
         let scored: Vec<&StepRow> = self.rows.iter().filter(|r| r.pairs > 0).collect();
         !scored.is_empty()
             && scored.iter().all(|r| {
-                r.mean.iter().enumerate().all(|(o, s)| {
-                    o == m || (r.mean[m].psnr_db > s.psnr_db && r.mean[m].ssim > s.ssim)
+                others.iter().all(|&o| {
+                    o != m
+                        && r.mean[m].psnr_db > r.mean[o].psnr_db
+                        && r.mean[m].ssim > r.mean[o].ssim
                 })
             })
     }
@@ -151,8 +153,12 @@ fn grey(rgb: &[u8]) -> Vec<f32> {
         .collect()
 }
 
-/// PSNR (dB, peak 255) of `b` against `a` over the pixels where `valid`; `None` with none.
+/// PSNR (dB, peak 255) of `b` against `a` over the pixels where `valid`; `None` with none,
+/// or where the three lengths differ.
 pub fn masked_psnr(a: &[f32], b: &[f32], valid: &[bool]) -> Option<f64> {
+    if a.len() != b.len() || a.len() != valid.len() {
+        return None;
+    }
     let (mut sum, mut n) = (0.0f64, 0usize);
     for ((x, y), _) in a.iter().zip(b).zip(valid).filter(|(_, v)| **v) {
         let d = f64::from(x - y);
@@ -173,8 +179,11 @@ pub fn masked_psnr(a: &[f32], b: &[f32], valid: &[bool]) -> Option<f64> {
 /// Mean SSIM of `b` against `a` (`w` x `h` grey levels) over 7 x 7 windows, each centred
 /// on a valid pixel and computed over the valid pixels in it (at least 25 of 49), with
 /// the usual constants for 8-bit levels; `None` where no window qualifies. Masked-out
-/// pixels take no part, whatever their values.
+/// pixels take no part, whatever their values. `None` also where a length is not `w * h`.
 pub fn masked_ssim(a: &[f32], b: &[f32], valid: &[bool], w: usize, h: usize) -> Option<f64> {
+    if a.len() != w * h || b.len() != w * h || valid.len() != w * h {
+        return None;
+    }
     // Integral images of n, a, b, a^2, b^2, ab over the valid pixels, (w+1) x (h+1).
     let stride = w + 1;
     let mut sums = vec![[0.0f64; 6]; stride * (h + 1)];
@@ -205,7 +214,7 @@ pub fn masked_ssim(a: &[f32], b: &[f32], valid: &[bool], w: usize, h: usize) -> 
             let (x1, y1) = ((x + SSIM_RADIUS + 1).min(w), (y + SSIM_RADIUS + 1).min(h));
             let at = |xx: usize, yy: usize| sums[yy * stride + xx];
             let (s11, s01, s10, s00) = (at(x1, y1), at(x0, y1), at(x1, y0), at(x0, y0));
-            let s: Vec<f64> = (0..6).map(|c| s11[c] - s01[c] - s10[c] + s00[c]).collect();
+            let s: [f64; 6] = std::array::from_fn(|c| s11[c] - s01[c] - s10[c] + s00[c]);
             let n = s[0];
             if n < f64::from(SSIM_MIN_PIXELS) {
                 continue;
@@ -247,6 +256,14 @@ pub fn check_views(
                 px.len()
             )));
         }
+    }
+    if let Some(m) = mask
+        && (m.width, m.height) != (camera.width, camera.height)
+    {
+        return Err(SimError::Invalid(format!(
+            "the chassis mask is {}x{}, the camera {w}x{h}",
+            m.width, m.height
+        )));
     }
     if sets.is_empty() || frames.is_empty() {
         return Err(SimError::Invalid(
@@ -378,7 +395,13 @@ pub fn check_views(
                 }
             }
         }
-        let per = |v: f64| if pairs > 0 { v / pairs as f64 } else { 0.0 };
+        let per = |v: f64| {
+            if pairs > 0 {
+                v / pairs as f64
+            } else {
+                f64::NAN
+            }
+        };
         rows.push(StepRow {
             k,
             pairs,
@@ -568,8 +591,8 @@ mod tests {
             assert!(r.mean[1].ssim > r.mean[2].ssim, "{}", check.table());
             assert!(r.beats_identity[1] > 0.9, "{:?}", r.beats_identity);
         }
-        assert!(check.best_everywhere(1));
-        assert!(!check.best_everywhere(2));
+        assert!(check.beats(1, &[0, 2]));
+        assert!(!check.beats(2, &[0]));
         let strip = check.strip.as_ref().expect("a strip");
         // 4 rows of (t, truth, wrong, real, three differences), 4 px apart.
         assert_eq!((strip.width(), strip.height()), (7 * 164, 4 * 124));
