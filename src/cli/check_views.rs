@@ -1,7 +1,7 @@
 //! `jetpilot poses --check-views`: the estimated poses judged by the frames themselves
-//! ([`odometry::views`]): frame t+k predicted from frame t through the poses and the ground
+//! ([`views`]): frame t+k predicted from frame t through the poses and the ground
 //! plane, scored against the real frame, beside the identity and the prior alone (and the
-//! truth, with `--check`). Then loop closure ([`odometry::loops`]): where a view is seen
+//! truth, with `--check`). Then loop closure ([`loops`]): where a view is seen
 //! again, how far apart each pose set puts the two frames. Writes `check-views.csv` and
 //! `check-views.png`.
 
@@ -14,9 +14,8 @@ use jetpilot::dataset::tub::{TubReader, TubRecord};
 use jetpilot::sim::Pose2;
 use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::odometry::loops;
-use jetpilot::sim::odometry::mask::PixelMask;
 use jetpilot::sim::odometry::views::{self, PoseSet};
-use jetpilot::sim::odometry::{self, Estimate, OdometryParams, Vehicle};
+use jetpilot::sim::odometry::{Estimate, OdometryParams};
 
 /// A pair is scored where at least this share of the camera's floor pixels is seen by
 /// every pose set in both frames.
@@ -69,38 +68,12 @@ pub fn loop_matches(
     loops::find_loops(&thumbs, &times, LOOP_MIN_GAP_S)
 }
 
-/// The chassis mask `params` asks for, over `est`'s records.
-pub fn chassis_mask(
-    tub: &TubReader,
-    camera: &CameraModel,
-    vehicle: Vehicle,
-    params: OdometryParams,
-    est: &Estimate,
-) -> Option<PixelMask> {
-    let by_index: HashMap<u64, &TubRecord> = tub.records().map(|r| (r.index, r)).collect();
-    let records: Vec<&TubRecord> = est
-        .poses
-        .iter()
-        .filter_map(|p| by_index.get(&p.index).copied())
-        .collect();
-    let mut warnings = Vec::new();
-    odometry::chassis_mask(
-        tub,
-        &records,
-        camera,
-        &vehicle,
-        &params.chassis,
-        &mut warnings,
-    )
-}
-
-/// Runs the check of `est` (and `prior`, the prior alone; `truth` where known) on `tub`'s
-/// frames and writes the table and the strip into `dir`.
-#[allow(clippy::too_many_arguments)]
+/// Runs the check of `est` (and `prior`, the prior alone; `truth` where known) on
+/// `frames` ([`load_frames`] of `est`), with the chassis mask `est` was estimated with, and
+/// writes the table and the strip into `dir`.
 pub fn run(
-    tub: &TubReader,
     camera: &CameraModel,
-    vehicle: Vehicle,
+    frames: &[views::Frame],
     params: OdometryParams,
     est: &Estimate,
     prior: &Estimate,
@@ -109,8 +82,6 @@ pub fn run(
 ) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let max_forward_m = params.grid.forward_m.1 * FLOOR_RANGE;
-    let frames = load_frames(tub, camera, est);
-    let mask = chassis_mask(tub, camera, vehicle, params, est);
     let prior_poses: HashMap<u64, Pose2> = prior.poses.iter().map(|p| (p.index, p.pose)).collect();
     let mut sets = vec![PoseSet {
         name: "estimate".into(),
@@ -137,8 +108,8 @@ pub fn run(
     }
     let check = views::check_views(
         camera,
-        &frames,
-        mask.as_ref(),
+        frames,
+        est.mask.as_ref(),
         &sets,
         &views::STEPS,
         max_forward_m,
@@ -172,7 +143,7 @@ pub fn run(
         "the estimate does NOT beat the identity and the prior alone by PSNR and SSIM at every k"
     };
     println!("  {verdict}; table: {}", csv.display());
-    let matches = loop_matches(&frames, camera, est);
+    let matches = loop_matches(frames, camera, est);
     println!(
         "loop closure:    frames that see a view seen at least {LOOP_MIN_GAP_S} s before, and how far apart the poses put them"
     );

@@ -112,7 +112,7 @@ pub struct PosesArgs {
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
 fn print_calibration(est: &odometry::Estimate) {
-    if let Some(n) = est.masked_pixels {
+    if let Some(n) = est.masked_pixels() {
         println!("chassis mask:    {n} pixels left out of registration");
     }
     if let (Some(sc), Some(car)) = (est.scales, est.car) {
@@ -273,8 +273,15 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         Pose2::default(),
         ReadOptions::default(),
     )?;
+    // The records' frames, read once for the checks that need them (every re-estimate
+    // keeps the same records).
+    let frames = if args.turn_from_loops || args.check_views {
+        check_views::load_frames(&tub, &cfg.sim.camera, &est)
+    } else {
+        Vec::new()
+    };
     let (est, vehicle) = if args.turn_from_loops {
-        poses_calibrate::turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est)?
+        poses_calibrate::turn_from_loops(&tub, &cfg.sim.camera, vehicle, params, est, &frames)?
     } else {
         (est, vehicle)
     };
@@ -307,16 +314,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
             Pose2::default(),
             ReadOptions::default(),
         )?;
-        check_views::run(
-            &tub,
-            &cfg.sim.camera,
-            vehicle,
-            params,
-            &est,
-            &prior,
-            None,
-            &out,
-        )?;
+        check_views::run(&cfg.sim.camera, &frames, params, &est, &prior, None, &out)?;
     }
     print_replay_use(&out);
     Ok(ExitCode::SUCCESS)
@@ -457,10 +455,10 @@ fn check_against_truth(
                 .filter(|p| !p.as_os_str().is_empty())
                 .map_or_else(|| PathBuf::from("."), Path::to_path_buf),
         };
+        let frames = check_views::load_frames(tub, &sim.camera, &est);
         check_views::run(
-            tub,
             &sim.camera,
-            vehicle,
+            &frames,
             params,
             &est,
             &base,

@@ -7,6 +7,8 @@ use jetpilot::sim::Pose2;
 use jetpilot::sim::camera::CameraModel;
 use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, Vehicle};
 
+use jetpilot::sim::odometry::views::Frame;
+
 use super::check_views;
 
 /// Below this [`odometry::calibrate::turn_agreement`] slope, the frames turn the other way.
@@ -42,7 +44,8 @@ pub fn fix_turn_sign(
     }
 }
 
-/// `--turn-from-loops`: the turn scale fitted on the loops within the drive's first half,
+/// `--turn-from-loops` on `frames` ([`check_views::load_frames`] of `est`): the turn
+/// scale fitted on the loops within the drive's first half,
 /// the estimate again with it, and the closure of the loops within the second half before
 /// and after. The re-estimate's own calibration may still refit the turn where vision
 /// measures it well (the `car model` / `wheel model` line prints what was used).
@@ -52,9 +55,9 @@ pub fn turn_from_loops(
     vehicle: Vehicle,
     params: OdometryParams,
     est: odometry::Estimate,
+    frames: &[Frame],
 ) -> anyhow::Result<(odometry::Estimate, Vehicle)> {
-    let frames = check_views::load_frames(tub, camera, &est);
-    let matches = check_views::loop_matches(&frames, camera, &est);
+    let matches = check_views::loop_matches(frames, camera, &est);
     let half = est.poses.len() / 2;
     // Loops within the first half fit the scale, loops within the second check it, and
     // loops across the middle take no part (they would tie the two together).

@@ -215,8 +215,7 @@ pub fn turn_scale(matches: &[LoopMatch], poses: &[Pose2]) -> Option<(f32, usize)
 #[cfg(test)]
 mod tests {
     use super::super::super::camera::CameraModel;
-    use super::super::ackermann::{CarOdometry, CarParams};
-    use super::super::car_drive_test::render;
+    use super::super::car_drive_test::{render, test_car};
     use super::super::compose;
     use super::*;
 
@@ -249,12 +248,7 @@ mod tests {
     fn a_circle_driven_twice_closes_with_the_true_poses_and_not_with_a_short_turn() {
         // Full lock at 0.7 m/s: a 0.8 m circle, 5.03 m round, 7.18 s, 143.6 frames at 20 Hz.
         let camera = CameraModel::donkeycar(160, 120);
-        let mut car = CarOdometry::new(CarParams {
-            speed_per_throttle_mps: 2.8,
-            curvature_per_unit: -1.25,
-            curvature_offset: 0.0,
-            time_constant_s: 0.0,
-        });
+        let mut car = test_car(0.0);
         let mut pose = Pose2::default();
         let (mut thumbs, mut truth, mut times) = (Vec::new(), Vec::new(), Vec::new());
         // 3 s standing still first: the same view 2 s later is not a loop.

@@ -364,8 +364,8 @@ pub struct Estimate {
     pub scales: Option<calibrate::Scales>,
     /// The car model's parameters with the corrections folded in (a car only).
     pub car: Option<CarParams>,
-    /// Pixels left out of registration as the chassis (`None`: no mask was made).
-    pub masked_pixels: Option<usize>,
+    /// The pixels left out of registration as the chassis (`None`: no mask was made).
+    pub mask: Option<PixelMask>,
     /// Vision's scatter about the wheels ([`calibrate::scatter`]).
     pub scatter: Option<f64>,
     /// How vision's turn follows the prior's in the calibration pass
@@ -382,6 +382,11 @@ pub struct Estimate {
 }
 
 impl Estimate {
+    /// How many pixels the chassis mask leaves out (`None`: no mask was made).
+    pub fn masked_pixels(&self) -> Option<usize> {
+        self.mask.as_ref().map(PixelMask::count)
+    }
+
     /// Frames that fell back to the wheel prior.
     pub fn flagged(&self) -> usize {
         self.poses
@@ -567,7 +572,7 @@ fn estimate_once(
         poses,
         scales,
         car: odo.car_params(),
-        masked_pixels: setup.mask.map(PixelMask::count),
+        mask: setup.mask.cloned(),
         scatter,
         turn_agreement,
         prior_weight: params.fusion.prior_weight,

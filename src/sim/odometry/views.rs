@@ -485,8 +485,7 @@ fn draw_strip(camera: &CameraModel, frames: &[Frame], shown: &[Shown]) -> RgbIma
 
 #[cfg(test)]
 mod tests {
-    use super::super::ackermann::{CarOdometry, CarParams};
-    use super::super::car_drive_test::render;
+    use super::super::car_drive_test::{render, test_car};
     use super::super::compose;
     use super::*;
 
@@ -535,12 +534,7 @@ mod tests {
     /// A car drive over the textured floor of the car-drive test: its frames, and the
     /// true poses.
     fn drive(camera: &CameraModel, frames: usize) -> (Vec<Frame>, Vec<Pose2>) {
-        let mut car = CarOdometry::new(CarParams {
-            speed_per_throttle_mps: 2.8,
-            curvature_per_unit: -1.25,
-            curvature_offset: 0.0,
-            time_constant_s: 0.3,
-        });
+        let mut car = test_car(0.3);
         let mut pose = Pose2::default();
         let (mut images, mut poses) = (Vec::new(), Vec::new());
         for k in 0..frames {
