@@ -300,6 +300,10 @@ pub struct ControlConfig {
     pub steering_bias: f32,
     pub steering_ki: f32,
     pub integral_limit: f32,
+    /// `"differential"` (JetBot, the default) or `"car"`: the simulator's car-like vehicle
+    /// (`sim.vehicle = "car"`, a DonkeyCar replay) gets DonkeyCar's throttle and angle
+    /// (`control::Mixing`).
+    pub mixing: crate::control::Mixing,
 }
 
 impl Default for ControlConfig {
@@ -312,6 +316,7 @@ impl Default for ControlConfig {
             steering_bias: g.steering_bias,
             steering_ki: g.steering_ki,
             integral_limit: g.integral_limit,
+            mixing: g.mixing,
         }
     }
 }
@@ -325,6 +330,7 @@ impl ControlConfig {
             steering_bias: self.steering_bias,
             steering_ki: self.steering_ki,
             integral_limit: self.integral_limit,
+            mixing: self.mixing,
         }
     }
 }
@@ -625,6 +631,15 @@ impl Config {
         v.range("control.steering_bias", c.steering_bias, -0.5, 0.5)?;
         v.range("control.steering_ki", c.steering_ki, 0.0, 2.0)?;
         v.range("control.integral_limit", c.integral_limit, 0.0, 1.0)?;
+        let car_sim = self.sim.vehicle == crate::sim::setup::SimVehicle::Car;
+        if (c.mixing == crate::control::Mixing::Car) != car_sim {
+            let mixing = format!("{:?}", c.mixing).to_lowercase();
+            return Err(v.err(
+                "control.mixing",
+                &format!("{mixing:?} with sim.vehicle = {:?}", format!("{:?}", self.sim.vehicle).to_lowercase()),
+                "\"car\" together with sim.vehicle = \"car\" (the simulated DonkeyCar: its throttle and angle on the motor channels), else \"differential\"; no motor driver for a steering servo and an ESC exists yet",
+            ));
+        }
         let m = &self.motors;
         if let Some(a) = m.address {
             v.range_u("motors.address", a as u64, 0x08, 0x77)?;

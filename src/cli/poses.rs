@@ -12,6 +12,7 @@ use jetpilot::config::Config;
 use jetpilot::dataset::tub::TubReader;
 use jetpilot::sim::Pose2;
 use jetpilot::sim::camera::CameraModel;
+use jetpilot::sim::odometry::ackermann::CarParams;
 use jetpilot::sim::odometry::birdseye::ViewGrid;
 use jetpilot::sim::odometry::output::Labels;
 use jetpilot::sim::odometry::{self, OdometryParams, ReadOptions, Vehicle, check, output};
@@ -172,14 +173,27 @@ fn load_config(path: Option<&Path>) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-/// `replay.toml` for the tub at `out`, made from the config the poses were estimated with.
-fn replay_file(args: &PosesArgs, cfg: &Config) -> anyhow::Result<(&'static str, String)> {
+/// `replay.toml` for the tub at `out`, made from the config the poses were estimated with
+/// (and a car's calibration, [`replay_car`]).
+fn replay_file(
+    args: &PosesArgs,
+    cfg: &Config,
+    car: Option<CarParams>,
+) -> anyhow::Result<(&'static str, String)> {
     let made_from = match &args.config {
         Some(c) => c.display().to_string(),
         None => "the JetBot defaults".to_string(),
     };
-    let text = output::replay_config(cfg, &made_from)?;
+    let text = output::replay_config(cfg, &made_from, car)?;
     Ok((output::REPLAY_CONFIG, text))
+}
+
+/// A car's calibrated params for its replay, in the recording's own angle convention (the
+/// estimate's are in the convention it ran with, reversed where the turn sign was flipped);
+/// `None` for differential drive.
+fn replay_car(est: &odometry::Estimate, params: &OdometryParams) -> Option<CarParams> {
+    est.car
+        .map(|c| if params.reverse_turn { c.reversed() } else { c })
 }
 
 /// The vehicle `args.vehicle` names, or the tub's fields call for.
@@ -252,8 +266,8 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
         args.tub.with_file_name(name)
     });
     output::refuse_existing(&out)?;
-    // Written before the estimate runs, so a config that cannot be written costs no run.
-    let replay = replay_file(&args, &cfg)?;
+    // Made before the estimate runs too, so a config that cannot be written costs no run.
+    replay_file(&args, &cfg, None)?;
     let started = std::time::Instant::now();
     let est = odometry::estimate(
         &tub,
@@ -289,6 +303,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     for w in &est.warnings {
         tracing::warn!("{w}");
     }
+    let replay = replay_file(&args, &cfg, replay_car(&est, &params))?;
     let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep, &[replay])?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
@@ -371,13 +386,12 @@ fn check_against_truth(
             args.tub.display()
         );
     };
-    let replay = match &args.out {
-        Some(out) => {
-            output::refuse_existing(out)?;
-            Some(replay_file(args, cfg)?)
-        }
-        None => None,
-    };
+    if let Some(out) = &args.out {
+        // Before the estimate runs, so a folder or a config that cannot be written costs
+        // no run.
+        output::refuse_existing(out)?;
+        replay_file(args, cfg, None)?;
+    }
     let opts = ReadOptions {
         every: args.every,
         noise: args.noise,
@@ -430,7 +444,8 @@ fn check_against_truth(
         "trace: {} (grey: truth, green: estimate, red: frames from the wheels)",
         png.display()
     );
-    if let (Some(out), Some(replay)) = (&args.out, replay) {
+    if let Some(out) = &args.out {
+        let replay = replay_file(args, cfg, replay_car(&est, &params))?;
         let n = output::write_tub(
             tub,
             &est,

@@ -16,13 +16,14 @@
 //! pid      = angle * steering_gain + (angle - angle_last) * steering_kd + steering_ki * integral
 //! steering = pid + steering_bias
 //! left  = clamp(speed + steering, 0, 1);  right = clamp(speed - steering, 0, 1)
+//!                  (JetBot's differential mixing; `mixing = "car"`: super::Mixing)
 //! ```
 //!
 //! Everything here is pure: no clock, no I/O.
 
 use serde::{Deserialize, Serialize};
 
-use super::WheelCommand;
+use super::{Mixing, WheelCommand};
 use crate::policy::contract::OutputKind;
 
 /// The tunable gains of the steering law.
@@ -40,6 +41,9 @@ pub struct SteeringGains {
     pub steering_ki: f32,
     /// Largest magnitude of the integral term `steering_ki * integral` (anti-windup).
     pub integral_limit: f32,
+    /// How speed and steering reach the motor channels (differential drive by default).
+    #[serde(default)]
+    pub mixing: Mixing,
 }
 
 impl Default for SteeringGains {
@@ -52,6 +56,7 @@ impl Default for SteeringGains {
             steering_bias: 0.0,
             steering_ki: 0.0,
             integral_limit: 0.3,
+            mixing: Mixing::Differential,
         }
     }
 }
@@ -84,7 +89,7 @@ pub struct SteeringOutput {
     pub steering: f32,
     /// The speed before mixing: `speed_gain`, scaled by the model's speed in speed_steering.
     pub speed: f32,
-    /// The mixed and clamped wheel commands, each in 0..=1.
+    /// The mixed wheel commands: each in 0..=1 (differential), -1..=1 (car).
     pub wheels: WheelCommand,
 }
 
@@ -184,10 +189,7 @@ impl SteeringLaw {
             angle * g.steering_gain + (angle - self.state.angle_last) * g.steering_kd + i_term;
         self.state.angle_last = angle;
         let steering = pid + g.steering_bias;
-        let wheels = WheelCommand::new(
-            (speed + steering).clamp(0.0, 1.0),
-            (speed - steering).clamp(0.0, 1.0),
-        );
+        let wheels = g.mixing.mix(speed, steering);
         SteeringOutput {
             angle,
             steering,
@@ -459,6 +461,7 @@ mod tests {
             steering_bias: 0.01,
             steering_ki: 0.4,
             integral_limit: 0.2,
+            mixing: Mixing::Differential,
         };
         let inputs = [
             [0.3, 0.1],

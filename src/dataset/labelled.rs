@@ -9,6 +9,9 @@
 //! speed_steering:  the steering law inverted on the wheels that were sent:
 //!                  speed    = clamp(((left + right) / 2) / speed_gain, 0, 1)
 //!                  steering = ((left - right) / 2) / steering_gain
+//!                  (with `control.mixing = "car"`: `left + right`, `left - right`); a
+//!                  DonkeyCar record without wheels: user/throttle and user/angle in their
+//!                  place
 //! ```
 //!
 //! Only the human's steps (`user/mode = user`) of a tub are demonstrations; the autopilot's
@@ -20,7 +23,7 @@ use std::path::{Path, PathBuf};
 use super::jetbot_xy::{self, XyFolder};
 use super::tub::{DriveMode, TubReader, TubRecord};
 use super::{DatasetError, Result};
-use crate::control::SteeringGains;
+use crate::control::{Mixing, SteeringGains, WheelCommand};
 use crate::policy::OutputKind;
 
 /// How labels are made for one output kind.
@@ -29,6 +32,8 @@ pub struct LabelMap {
     pub output: OutputKind,
     pub speed_gain: f32,
     pub steering_gain: f32,
+    /// How the recorded wheels were mixed from speed and steering.
+    pub mixing: Mixing,
 }
 
 impl LabelMap {
@@ -37,19 +42,27 @@ impl LabelMap {
             output,
             speed_gain: gains.speed_gain,
             steering_gain: gains.steering_gain,
+            mixing: gains.mixing,
         }
     }
 
     /// `[speed, steering]` for wheel commands, inverting the `speed_steering` law (the
     /// derivative and integral terms are left out: a demonstration has no PID state).
     pub fn speed_steering(&self, left: f32, right: f32) -> [f32; 2] {
+        let (speed, steering) = self.mixing.unmix(WheelCommand::new(left, right));
+        self.from_speed_steering(speed, steering)
+    }
+
+    /// `[speed, steering]` for the law's speed and steering before mixing (a DonkeyCar's
+    /// throttle and angle): each divided by its gain, the speed clamped to 0..=1.
+    fn from_speed_steering(&self, speed: f32, steering: f32) -> [f32; 2] {
         let speed = if self.speed_gain > 1e-6 {
-            ((left + right) / 2.0 / self.speed_gain).clamp(0.0, 1.0)
+            (speed / self.speed_gain).clamp(0.0, 1.0)
         } else {
             0.0
         };
         let steering = if self.steering_gain > 1e-6 {
-            (left - right) / 2.0 / self.steering_gain
+            steering / self.steering_gain
         } else {
             0.0
         };
@@ -60,13 +73,10 @@ impl LabelMap {
     pub fn for_record(&self, rec: &TubRecord) -> Option<[f32; 2]> {
         match self.output {
             OutputKind::Xy => rec.target.map(|(x, y)| [x, y]),
-            OutputKind::SpeedSteering => {
-                let (l, r) = rec.wheels.unwrap_or((
-                    rec.user_throttle + rec.user_angle,
-                    rec.user_throttle - rec.user_angle,
-                ));
-                Some(self.speed_steering(l, r))
-            }
+            OutputKind::SpeedSteering => Some(match rec.wheels {
+                Some((l, r)) => self.speed_steering(l, r),
+                None => self.from_speed_steering(rec.user_throttle, rec.user_angle),
+            }),
         }
     }
 
@@ -257,6 +267,36 @@ mod tests {
             "{v:?}"
         );
         assert_eq!(Label::Value([0.1, 0.2]).value(224, 224), [0.1, 0.2]);
+    }
+
+    #[test]
+    fn speed_steering_labels_invert_the_mixing_the_wheels_went_through() {
+        let gains = SteeringGains {
+            speed_gain: 0.5,
+            steering_gain: 0.25,
+            ..SteeringGains::default()
+        };
+        let jetbot = LabelMap::new(OutputKind::SpeedSteering, &gains);
+        // (0.4 + 0.2) / 2 / 0.5 = 0.6; (0.4 - 0.2) / 2 / 0.25 = 0.4.
+        let [s, t] = jetbot.speed_steering(0.4, 0.2);
+        assert!((s - 0.6).abs() < 1e-6 && (t - 0.4).abs() < 1e-6, "{s} {t}");
+        let car = LabelMap::new(
+            OutputKind::SpeedSteering,
+            &SteeringGains {
+                mixing: Mixing::Car,
+                ..gains
+            },
+        );
+        // Car channels (0.3, 0.1): throttle 0.4, angle 0.2 -> 0.4 / 0.5 = 0.8, 0.2 / 0.25 = 0.8.
+        let [s, t] = car.speed_steering(0.3, 0.1);
+        assert!((s - 0.8).abs() < 1e-6 && (t - 0.8).abs() < 1e-6, "{s} {t}");
+        // A DonkeyCar record (no wheels): its throttle and angle, whatever the mixing; full
+        // lock at throttle 0.25 is not clipped.
+        let rec = TubRecord::new(0, -1.0, 0.25, DriveMode::User);
+        for map in [jetbot, car] {
+            let [s, t] = map.for_record(&rec).unwrap();
+            assert!((s - 0.5).abs() < 1e-6 && (t + 4.0).abs() < 1e-6, "{s} {t}");
+        }
     }
 
     #[test]

@@ -361,6 +361,7 @@ impl Modes {
             steering_bias: fit(wanted.steering_bias, old.steering_bias, STEERING_BIAS_RANGE),
             steering_ki: fit(wanted.steering_ki, old.steering_ki, STEERING_KI_RANGE),
             integral_limit: old.integral_limit,
+            mixing: old.mixing,
         };
         if g != old {
             self.gains = g;

@@ -62,6 +62,11 @@ pub fn open_motors(
     clock: Arc<dyn Clock>,
 ) -> Result<Box<dyn MotorOutput>, MotorError> {
     let m = &cfg.motors;
+    if cfg.control.mixing == crate::control::Mixing::Car && m.backend != MotorBackend::Log {
+        return Err(MotorError::Invalid(
+            "control.mixing = \"car\" puts a DonkeyCar's throttle and angle on the motor channels, which only the simulator's car reads: no driver for a steering servo and an ESC exists yet (motors.backend = \"log\" records them)".into(),
+        ));
+    }
     match m.backend {
         MotorBackend::Log => {
             let mut out = LogMotors::new(clock).with_print(cfg.log.print_commands);

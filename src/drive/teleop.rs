@@ -623,6 +623,7 @@ mod tests {
             steering_bias: 0.05,
             steering_ki: 0.0,
             integral_limit: 123.0, // not the page's to change
+            ..SteeringGains::default()
         };
         t.on_remote(&web(1, RemoteRequest::Gains(g)), ms(850));
         assert!(gains.has_changed().unwrap());

@@ -5,12 +5,19 @@
 //! (a circular arc, not an Euler step), so the path does not depend on the step size when
 //! the wheel speeds are constant. Optional multiplicative speed noise (wheel slip) draws
 //! from the caller's seeded RNG only when it is enabled.
+//!
+//! A robot made with [`Robot::car`] is a car-like vehicle instead (a DonkeyCar: Ackermann
+//! steering as a bicycle, [`CarParams`]): the two motor channels carry DonkeyCar's throttle
+//! and angle ([`Mixing::Car`]), the throttle sets a speed reached through a first-order lag
+//! and the angle a curvature, clamped to full lock. It moves along the same exact arcs.
 
 use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use super::odometry::ackermann::{CarParams, lagged_distance};
 use super::{Pose2, Result, SimError, wrap_angle};
+use crate::control::{Mixing, WheelCommand};
 
 /// Duty -> wheel speed: a dead band, a linear range up to `top_speed_mps`, and a first-order
 /// lag with time constant `time_constant_s`.
@@ -109,15 +116,24 @@ impl RobotParams {
     }
 }
 
-/// A differential-drive robot on the mat.
+/// A differential-drive robot on the mat (or a car, [`Robot::car`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Robot {
     pub pose: Pose2,
-    /// Left wheel's ground speed (m/s), forward positive.
+    /// Left wheel's ground speed (m/s), forward positive. A car: the speed a wheel at
+    /// `wheel_base_m / 2` left of its centre line would have.
     pub v_left: f32,
     /// Right wheel's ground speed (m/s), forward positive.
     pub v_right: f32,
     params: RobotParams,
+    car: Option<Car>,
+}
+
+/// A car's command response and its body speed, which lags the throttle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Car {
+    params: CarParams,
+    speed: f32,
 }
 
 impl Robot {
@@ -128,7 +144,26 @@ impl Robot {
             v_left: 0.0,
             v_right: 0.0,
             params,
+            car: None,
         }
+    }
+
+    /// A car-like vehicle at rest at `pose`, driven by DonkeyCar's throttle and angle on
+    /// the two motor channels ([`Mixing::Car`]). Of `params` only `speed_noise` (and the
+    /// nominal `wheel_base_m` of [`Robot::v_left`]) apply.
+    pub fn car(params: RobotParams, car: CarParams, pose: Pose2) -> Self {
+        Self {
+            car: Some(Car {
+                params: car,
+                speed: 0.0,
+            }),
+            ..Self::new(params, pose)
+        }
+    }
+
+    /// The car's params, `None` for differential drive.
+    pub fn car_params(&self) -> Option<&CarParams> {
+        self.car.as_ref().map(|c| &c.params)
     }
 
     pub fn params(&self) -> &RobotParams {
@@ -140,6 +175,9 @@ impl Robot {
         self.pose = pose;
         self.v_left = 0.0;
         self.v_right = 0.0;
+        if let Some(car) = &mut self.car {
+            car.speed = 0.0;
+        }
     }
 
     /// Forward speed of the body (m/s).
@@ -162,6 +200,10 @@ impl Robot {
         if !(dt > 0.0 && dt.is_finite()) {
             return;
         }
+        if let Some(car) = self.car {
+            self.step_car(car, duty_left, duty_right, dt, rng);
+            return;
+        }
         let m = &self.params.motor;
         let k = m.lag_fraction(dt);
         self.v_left += (m.target_speed(duty_left) - self.v_left) * k;
@@ -182,6 +224,50 @@ impl Robot {
             vl,
             vr,
             f64::from(self.params.wheel_base_m),
+            f64::from(dt),
+        );
+        self.pose = Pose2::new(x as f32, y as f32, wrap_angle(h as f32));
+    }
+}
+
+impl Robot {
+    /// [`Robot::step`] for a car: throttle and angle from the channels, the speed's lag over
+    /// `dt` (its distance exact), the noise on that distance, the arc of the angle's
+    /// curvature.
+    fn step_car(&mut self, mut car: Car, left: f32, right: f32, dt: f32, rng: &mut impl Rng) {
+        let finite = |v: f32| {
+            if v.is_finite() {
+                v.clamp(-1.0, 1.0)
+            } else {
+                0.0
+            }
+        };
+        let (throttle, angle) = Mixing::Car.unmix(WheelCommand::new(left, right));
+        let (throttle, angle) = (finite(throttle), finite(angle));
+        let p = car.params;
+        let target = throttle * p.speed_per_throttle_mps;
+        let (distance, speed) = lagged_distance(car.speed, target, p.time_constant_s, dt);
+        car.speed = speed;
+        self.car = Some(car);
+        let mut v = f64::from(distance / dt);
+        let sigma = f64::from(self.params.speed_noise);
+        if sigma > 0.0 {
+            let n: f64 = rng.sample(StandardNormal);
+            v *= 1.0 + sigma * n;
+        }
+        // The arc of a unicycle with the equivalent wheel speeds at the nominal base.
+        let k = f64::from(p.curvature(angle));
+        let b = f64::from(self.params.wheel_base_m);
+        let (vl, vr) = (v * (1.0 - k * b / 2.0), v * (1.0 + k * b / 2.0));
+        self.v_left = speed * (1.0 - (k * b / 2.0) as f32);
+        self.v_right = speed * (1.0 + (k * b / 2.0) as f32);
+        let (x, y, h) = integrate(
+            f64::from(self.pose.x),
+            f64::from(self.pose.y),
+            f64::from(self.pose.heading),
+            vl,
+            vr,
+            b,
             f64::from(dt),
         );
         self.pose = Pose2::new(x as f32, y as f32, wrap_angle(h as f32));
@@ -383,6 +469,83 @@ mod tests {
         let noisy = run(3);
         let clean = quiet(3);
         assert!((noisy.x - clean.x).hypot(noisy.y - clean.y) < 0.1);
+    }
+
+    fn car_no_lag() -> CarParams {
+        CarParams {
+            speed_per_throttle_mps: 4.0,
+            curvature_per_unit: -2.0,
+            curvature_offset: 0.0,
+            time_constant_s: 0.0,
+        }
+    }
+
+    /// The motor channels for DonkeyCar's throttle and angle.
+    fn car_duties(throttle: f32, angle: f32) -> (f32, f32) {
+        let w = Mixing::Car.mix(throttle, angle);
+        (w.left, w.right)
+    }
+
+    #[test]
+    fn a_car_at_full_lock_drives_a_circle_of_its_turning_radius() {
+        // Throttle 0.25: 1 m/s; angle -1: curvature 2 /m to the left, radius 0.5 m. Pi
+        // seconds at 240 Hz: once round, back at the start, never more than 1 m from it.
+        let start = Pose2::new(1.0, 2.0, 0.0);
+        let mut car = Robot::car(RobotParams::default(), car_no_lag(), start);
+        let (l, r) = car_duties(0.25, -1.0);
+        let n = (std::f32::consts::PI * 240.0).round() as usize;
+        let dt = std::f32::consts::PI / n as f32;
+        let mut far = 0.0f32;
+        for _ in 0..n {
+            car.step(l, r, dt, &mut rng());
+            far = far.max((car.pose.x - 1.0).hypot(car.pose.y - 2.0));
+            // It turns left: y never below the start.
+            assert!(car.pose.y >= 2.0 - 1e-4);
+        }
+        let gap = (car.pose.x - 1.0).hypot(car.pose.y - 2.0);
+        assert!(gap < 2e-3, "{:?}", car.pose);
+        assert!((far - 1.0).abs() < 1e-3, "diameter {far}");
+        assert!((car.speed() - 1.0).abs() < 1e-6);
+        assert!((car.yaw_rate() - 2.0).abs() < 1e-5, "{}", car.yaw_rate());
+        // Past full lock the angle is clamped: channels asking for angle 1.5 turn as 1.
+        let mut a = Robot::car(RobotParams::default(), car_no_lag(), Pose2::default());
+        let mut b = a.clone();
+        a.step(0.25 / 2.0 + 0.75, 0.25 / 2.0 - 0.75, 0.1, &mut rng());
+        let (l, r) = car_duties(0.25, 1.0);
+        b.step(l, r, 0.1, &mut rng());
+        assert_eq!(a.pose, b.pose);
+        assert!(a.pose.heading < 0.0, "angle +1 turns right");
+    }
+
+    #[test]
+    fn a_cars_speed_lags_its_throttle() {
+        // tau 0.3 s from rest at throttle 0.25 (target 1 m/s): after 0.3 s, 1 - e^-1 =
+        // 0.6321 m/s and 0.3 e^-1 = 0.1104 m covered, in 72 steps as in one.
+        let p = CarParams {
+            time_constant_s: 0.3,
+            ..car_no_lag()
+        };
+        let mut car = Robot::car(RobotParams::default(), p, Pose2::default());
+        let (l, r) = car_duties(0.25, 0.0);
+        for _ in 0..72 {
+            car.step(l, r, 0.3 / 72.0, &mut rng());
+        }
+        assert!((car.pose.x - 0.110_364).abs() < 1e-5, "{:?}", car.pose);
+        assert!((car.speed() - 0.632_12).abs() < 1e-5);
+        assert_eq!(car.pose.y, 0.0);
+        // Reset: at rest again.
+        car.reset(Pose2::default());
+        assert_eq!(car.speed(), 0.0);
+        assert_eq!(car.car_params(), Some(&p));
+        // Not a number on a channel: no throttle, no motion from it.
+        let mut c = Robot::car(RobotParams::default(), car_no_lag(), Pose2::default());
+        c.step(f32::NAN, f32::NAN, 0.1, &mut rng());
+        assert_eq!(c.pose, Pose2::default());
+        assert!(
+            Robot::new(RobotParams::default(), Pose2::default())
+                .car_params()
+                .is_none()
+        );
     }
 
     #[test]

@@ -36,6 +36,18 @@ pub enum FrameMode {
     Replay,
 }
 
+/// What drives on the road.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SimVehicle {
+    /// A differential-drive JetBot (`[sim.robot]`).
+    #[default]
+    Wheels,
+    /// A car-like vehicle (`[sim.car]`, a DonkeyCar): the motor channels carry its throttle
+    /// and angle, so `control.mixing = "car"` goes with it.
+    Car,
+}
+
 /// What the road is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -103,7 +115,11 @@ pub struct SimConfig {
     pub mat_px_per_m: f32,
     pub camera: CameraModel,
     pub robot: RobotParams,
-    /// A car-like vehicle's command response (`jetpilot poses` on a DonkeyCar tub).
+    /// `"wheels"` (JetBot, the default) or `"car"`: the `[sim.car]` vehicle (the replay of
+    /// a DonkeyCar tub, which `jetpilot poses` writes).
+    pub vehicle: SimVehicle,
+    /// A car-like vehicle's command response (`jetpilot poses` on a DonkeyCar tub, and the
+    /// simulated car).
     pub car: super::odometry::ackermann::CarParams,
     /// The chassis mask `jetpilot poses` leaves out of registration.
     pub chassis: super::odometry::mask::ChassisConfig,
@@ -137,6 +153,7 @@ impl Default for SimConfig {
             mat_px_per_m: 400.0,
             camera: CameraModel::default(),
             robot: RobotParams::default(),
+            vehicle: SimVehicle::Wheels,
             car: super::odometry::ackermann::CarParams::default(),
             chassis: super::odometry::mask::ChassisConfig::default(),
             reward: RewardParams::default(),
@@ -341,6 +358,10 @@ fn rig(cfg: &Config, track: Track, frames: FrameMaker) -> Result<SimRig, SimErro
         cfg.sim.reward,
         cfg.sim.seed,
     );
+    if cfg.sim.vehicle == SimVehicle::Car {
+        cfg.sim.car.validate()?;
+        world.robot = super::robot::Robot::car(cfg.sim.robot, cfg.sim.car, world.robot.pose);
+    }
     world.set_stall_rule(cfg.sim.stall);
     if cfg.sim.appearance.enabled {
         cfg.sim.appearance.validate()?;

@@ -256,6 +256,7 @@ mod tests {
             output,
             speed_gain: 0.5,
             steering_gain: 0.25,
+            mixing: crate::control::Mixing::Differential,
         }
     }
 

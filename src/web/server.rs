@@ -388,6 +388,7 @@ impl ClientMsg {
                 steering_bias: *steering_bias,
                 steering_ki: *steering_ki,
                 integral_limit: current.integral_limit,
+                mixing: current.mixing,
             }),
             ClientMsg::Record { on } => RemoteRequest::Record(*on),
             ClientMsg::Save

@@ -76,6 +76,15 @@ impl CarParams {
         check("time_constant_s", self.time_constant_s, 0.0, 5.0)
     }
 
+    /// The same car with its steering's sign the other way (`poses`' reversed turn, read
+    /// back in the recording's own angle convention): the curvature per unit angle negated.
+    pub fn reversed(self) -> Self {
+        Self {
+            curvature_per_unit: -self.curvature_per_unit,
+            ..self
+        }
+    }
+
     /// The curvature commanded by `angle` (1/m, positive to the left).
     pub fn curvature(&self, angle: f32) -> f32 {
         angle * self.curvature_per_unit + self.curvature_offset

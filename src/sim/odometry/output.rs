@@ -10,10 +10,12 @@ use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use super::super::setup::{FrameMode, RoadSource};
+use super::super::setup::{FrameMode, RoadSource, SimVehicle};
 use super::super::{Pose2, SimError};
+use super::ackermann::CarParams;
 use super::{Estimate, FramePose};
-use crate::config::Config;
+use crate::config::{Config, ControlConfig};
+use crate::control::Mixing;
 use crate::dataset::tub::{TubInputs, TubReader, TubWriter};
 
 fn file_err(path: &Path, reason: impl std::fmt::Display) -> SimError {
@@ -69,12 +71,39 @@ pub fn replay_commands(config: &Path) -> [String; 2] {
 /// made absolute) with `sim.frames = "replay"`, `sim.recording = "."` (the folder the file
 /// is in) and `sim.road = "path"`, random layouts off (they are rendered only), under a
 /// header that says how to use it. `made_from` names `base` in the header.
-pub fn replay_config(base: &Config, made_from: &str) -> Result<String, SimError> {
+///
+/// With `car` (a car-like recording: the calibrated [`CarParams`] in the tub's own angle
+/// convention) the replay's vehicle is that car (`sim.vehicle = "car"`, `[sim.car]`), and
+/// the law hands it the model's throttle and angle as DonkeyCar's pilot does:
+/// `control.mixing = "car"`, speed and steering gains 1, no derivative, integral or bias.
+pub fn replay_config(
+    base: &Config,
+    made_from: &str,
+    car: Option<CarParams>,
+) -> Result<String, SimError> {
     let mut cfg = base.clone();
     cfg.sim.frames = FrameMode::Replay;
     cfg.sim.recording = Some(PathBuf::from("."));
     cfg.sim.road = RoadSource::Path;
     cfg.sim.layouts.enabled = false;
+    let mut car_note = String::new();
+    if let Some(car) = car {
+        cfg.sim.vehicle = SimVehicle::Car;
+        cfg.sim.car = car;
+        cfg.control = ControlConfig {
+            speed_gain: 1.0,
+            steering_gain: 1.0,
+            steering_kd: 0.0,
+            steering_bias: 0.0,
+            steering_ki: 0.0,
+            mixing: Mixing::Car,
+            ..cfg.control
+        };
+        car_note = "# The car: [sim.car] is what the frames say this car does (calibrated by `poses`, in\n\
+                    # the tub's own angle convention), and [control] passes a speed_steering model's\n\
+                    # (throttle, angle) to it unchanged, as DonkeyCar's pilot does.\n"
+            .to_string();
+    }
     let body = cfg
         .to_toml()
         .map_err(|e| SimError::Invalid(format!("writing {REPLAY_CONFIG}: {e}")))?;
@@ -87,7 +116,7 @@ pub fn replay_config(base: &Config, made_from: &str) -> Result<String, SimError>
          #   {ddpg}\n\
          # [sim.path] lanes: 1 when the path runs in a lane between two lines, 2 on the JetBot\n\
          # mat (the path is the right lane of a two-lane road). Paths are absolute, but for\n\
-         # sim.recording: \".\" is this folder, so the folder can be moved as a whole.\n\n{body}"
+         # sim.recording: \".\" is this folder, so the folder can be moved as a whole.\n{car_note}\n{body}"
     ))
 }
 
