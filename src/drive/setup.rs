@@ -144,3 +144,33 @@ fn open_rpi(_cfg: &Config) -> Result<Box<dyn MotorOutput>, MotorError> {
         "motors.backend = \"rppal\" needs a build with the `rpi` feature (cargo build --features rpi)".into(),
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::MonotonicClock;
+
+    #[test]
+    fn a_cars_mixing_opens_no_real_motors() {
+        // The DonkeyCar replay's config on a robot: its throttle and angle would reach a
+        // JetBot's wheels as wheel duties, so no real backend opens with it.
+        let cfg = Config::parse(
+            "[control]\nmixing = \"car\"\n[sim]\nvehicle = \"car\"\n[motors]\nbackend = \"i2c\"\n",
+            "car.toml",
+        )
+        .unwrap();
+        let err = open_motors(&cfg, Arc::new(MonotonicClock::new()))
+            .err()
+            .expect("refused");
+        assert!(err.to_string().contains("control.mixing"), "{err}");
+        // The log backend records them.
+        let log = Config {
+            motors: crate::config::MotorsConfig {
+                backend: MotorBackend::Log,
+                ..cfg.motors.clone()
+            },
+            ..cfg
+        };
+        assert!(open_motors(&log, Arc::new(MonotonicClock::new())).is_ok());
+    }
+}

@@ -1073,3 +1073,41 @@ fn the_demo_drive_the_daemon_with_its_web_page_engaged_from_the_start_and_a_trac
     let trace = image::open(png.join("trace.png")).unwrap();
     assert!(trace.width() > 100 && trace.height() > 100);
 }
+
+#[test]
+fn the_simulated_car_gets_donkeycars_throttle_and_angle_through_the_virtual_hat() {
+    // A DonkeyCar at throttle 0.25 and full lock left: `[sim.car]` says 1 m/s and a 0.5 m
+    // turning radius. The law's car mixing goes through the daemon's motor driver and the
+    // virtual PCA9685's registers; the car drives the circle, where JetBot's mixing would
+    // have clipped the same command to (0, 1), half lock at twice the speed.
+    let cfg = small_config(
+        "mixing = \"car\"\n[sim]\nvehicle = \"car\"\n[sim.car]\ntime_constant_s = 0.0\n",
+    );
+    let mut rig = setup::build(&cfg).unwrap();
+    let law = cfg.control.gains();
+    rig.motors.drive(law.mixing.mix(0.25, -1.0)).unwrap();
+    let start = rig.world.robot.pose;
+    let (mut far, steps) = (0.0f32, 754); // pi seconds at 240 Hz
+    for _ in 0..steps {
+        rig.world.advance(std::f32::consts::PI / steps as f32);
+        let p = rig.world.robot.pose;
+        far = far.max((p.x - start.x).hypot(p.y - start.y));
+    }
+    let p = rig.world.robot.pose;
+    // The PCA9685's 12-bit duty rounds the channels: within 1 % of the radius.
+    assert!((far - 1.0).abs() < 0.01, "diameter {far}");
+    assert!(
+        (p.x - start.x).hypot(p.y - start.y) < 0.03,
+        "{p:?} from {start:?}"
+    );
+    assert!((rig.world.robot.speed() - 1.0).abs() < 0.01);
+    // A car's mixing needs the car: the config says which key is wrong.
+    let err = Config::parse("[control]\nmixing = \"car\"\n", "bad.toml").unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("control.mixing") && msg.contains("sim.vehicle"),
+        "{msg}"
+    );
+    let err = Config::parse("[sim]\nvehicle = \"car\"\n", "bad.toml").unwrap_err();
+    assert!(err.to_string().contains("control.mixing"), "{err}");
+}

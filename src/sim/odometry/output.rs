@@ -299,6 +299,31 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_cars_replay_drives_its_calibrated_car_with_donkeycars_commands() {
+        let car = CarParams {
+            curvature_per_unit: 2.6,
+            ..CarParams::default()
+        };
+        let text = replay_config(&Config::default(), "a test", Some(car)).unwrap();
+        let cfg = Config::parse(&text, "replay.toml").unwrap();
+        assert_eq!(cfg.sim.vehicle, SimVehicle::Car);
+        assert_eq!(cfg.sim.car, car);
+        assert_eq!(cfg.control.mixing, Mixing::Car);
+        assert_eq!(
+            (cfg.control.speed_gain, cfg.control.steering_gain),
+            (1.0, 1.0)
+        );
+        assert!(text.contains("# The car:"), "{text}");
+        // A JetBot's replay keeps the wheels and the config's own law.
+        let text = replay_config(&Config::default(), "a test", None).unwrap();
+        let cfg = Config::parse(&text, "replay.toml").unwrap();
+        assert_eq!(cfg.sim.vehicle, SimVehicle::Wheels);
+        assert_eq!(cfg.control, Config::default().control);
+        // `poses` reversed the turn: the car read back in the tub's convention.
+        assert_eq!(car.reversed().curvature_per_unit, -2.6);
+    }
+
+    #[test]
     fn the_partial_folder_sits_beside_the_output() {
         assert_eq!(
             partial_dir(Path::new("/d/lap-poses")),
