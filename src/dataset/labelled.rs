@@ -50,12 +50,12 @@ impl LabelMap {
     /// derivative and integral terms are left out: a demonstration has no PID state).
     pub fn speed_steering(&self, left: f32, right: f32) -> [f32; 2] {
         let (speed, steering) = self.mixing.unmix(WheelCommand::new(left, right));
-        self.from_speed_steering(speed, steering)
+        self.label_of_speed_steering(speed, steering)
     }
 
     /// `[speed, steering]` for the law's speed and steering before mixing (a DonkeyCar's
     /// throttle and angle): each divided by its gain, the speed clamped to 0..=1.
-    fn from_speed_steering(&self, speed: f32, steering: f32) -> [f32; 2] {
+    fn label_of_speed_steering(&self, speed: f32, steering: f32) -> [f32; 2] {
         let speed = if self.speed_gain > 1e-6 {
             (speed / self.speed_gain).clamp(0.0, 1.0)
         } else {
@@ -75,7 +75,7 @@ impl LabelMap {
             OutputKind::Xy => rec.target.map(|(x, y)| [x, y]),
             OutputKind::SpeedSteering => Some(match rec.wheels {
                 Some((l, r)) => self.speed_steering(l, r),
-                None => self.from_speed_steering(rec.user_throttle, rec.user_angle),
+                None => self.label_of_speed_steering(rec.user_throttle, rec.user_angle),
             }),
         }
     }

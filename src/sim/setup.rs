@@ -90,6 +90,11 @@ pub struct SimConfig {
     /// `pose/heading` (real data with poses from a tracker, or `jetpilot sim --record`);
     /// unset: the expert drives one lap in the rendered world and that is the recording.
     pub recording: Option<PathBuf>,
+    /// The part of `recording` the replay uses, as the fractions (from, to) of its frames
+    /// in recorded order (time): 0.7 to 1.0 is its latest 30 %, the frames `train probe
+    /// --leave-latest 0.3` left out. Both the views and (`road = "path"`) the road come
+    /// from that part only. Default 0 to 1: all of it.
+    pub recording_span: [f32; 2],
     /// `replay` without `recording`: spacing of the frames the expert records, metres.
     pub record_spacing_m: f32,
     /// Replay: a view turned further than this from its recorded frame ends the episode
@@ -142,6 +147,7 @@ impl Default for SimConfig {
             reverse: false,
             frames: FrameMode::Render,
             recording: None,
+            recording_span: [0.0, 1.0],
             record_spacing_m: 0.02,
             replay_max_heading_deg: 18.0,
             replay_fill: ReplayFill::Earlier,
@@ -239,6 +245,7 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording, (f32, f32)), SimE
         return Err(needs("sim.recording"));
     };
     let mut recording = tub_recording(dir, &sim.camera)?;
+    recording.frames = span_of(recording.frames, sim.recording_span, dir)?;
     // Moved so the path lies 0.5 m inside the positive quadrant (estimated poses start at
     // the origin; the top-down trace draws from it): frames and road move together, so
     // nothing changes but the coordinates.
@@ -266,6 +273,39 @@ pub fn path_road(sim: &SimConfig) -> Result<(Track, Recording, (f32, f32)), SimE
     Ok((road.track, recording, (0.5 - min_x, 0.5 - min_y)))
 }
 
+/// The frames of `span` (`sim.recording_span`: fractions of the recording in recorded
+/// order, `round(from * n) .. round(to * n)`), at least two.
+pub fn span_of<T>(
+    mut frames: Vec<T>,
+    span: [f32; 2],
+    dir: &std::path::Path,
+) -> Result<Vec<T>, SimError> {
+    let [from, to] = span;
+    if !((0.0..1.0).contains(&from) && to > from && to <= 1.0) {
+        return Err(SimError::Invalid(format!(
+            "sim.recording_span = [{from}, {to}]: allowed 0 <= from < to <= 1 (fractions of \
+             the recording in time)"
+        )));
+    }
+    let n = frames.len();
+    let (a, b) = (
+        (from as f64 * n as f64).round() as usize,
+        ((to as f64 * n as f64).round() as usize).min(n),
+    );
+    if b < a + 2 {
+        return Err(SimError::File {
+            path: dir.display().to_string(),
+            reason: format!(
+                "sim.recording_span = [{from}, {to}] leaves {} of its {n} frames with poses; the replay needs at least 2",
+                b.saturating_sub(a)
+            ),
+        });
+    }
+    frames.truncate(b);
+    frames.drain(..a);
+    Ok(frames)
+}
+
 /// Builds the world for `cfg`: the motor driver initialises the virtual HAT exactly as it
 /// would the real one (layout, address, trims from `[motors]`).
 pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
@@ -282,7 +322,11 @@ pub fn build(cfg: &Config) -> Result<SimRig, SimError> {
         FrameMode::Render => FrameMaker::Render(renderer(sim, &track)?),
         FrameMode::Replay => {
             let recording = match &sim.recording {
-                Some(dir) => tub_recording(dir, &sim.camera)?,
+                Some(dir) => {
+                    let mut r = tub_recording(dir, &sim.camera)?;
+                    r.frames = span_of(r.frames, sim.recording_span, dir)?;
+                    r
+                }
                 None => expert_lap_recording(cfg, &track)?,
             };
             tracing::info!(
@@ -471,4 +515,31 @@ pub fn tub_recording(dir: &std::path::Path, camera: &CameraModel) -> Result<Reco
         camera: *camera,
         frames,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_recording_span_keeps_the_frames_of_its_fractions() {
+        let dir = std::path::Path::new("tub");
+        let all: Vec<u32> = (0..10).collect();
+        assert_eq!(span_of(all.clone(), [0.0, 1.0], dir).unwrap(), all);
+        // The latest 30 %: frames 7, 8, 9 (round(0.7 * 10) = 7).
+        assert_eq!(span_of(all.clone(), [0.7, 1.0], dir).unwrap(), [7, 8, 9]);
+        assert_eq!(span_of(all.clone(), [0.25, 0.55], dir).unwrap(), [3, 4, 5]);
+        // Too little left, or not a span: named.
+        let err = span_of(all.clone(), [0.9, 1.0], dir)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("leaves 1 of its 10") && err.contains("tub"),
+            "{err}"
+        );
+        for bad in [[0.5, 0.5], [-0.1, 1.0], [0.2, 1.5], [f32::NAN, 1.0]] {
+            let err = span_of(all.clone(), bad, dir).unwrap_err().to_string();
+            assert!(err.contains("sim.recording_span"), "{err}");
+        }
+    }
 }

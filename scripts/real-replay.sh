@@ -1,0 +1,149 @@
+#!/usr/bin/env bash
+# A real recording becomes a simulator, end to end (issue 49 item 3,
+# docs/results/real-replay.md):
+#
+#   scripts/real-replay.sh TUB OUT
+#
+# 1. `jetpilot poses` on TUB (a DonkeyCar tub: config/donkeycar.toml, the car-like prior;
+#    a tub with wheels/left, wheels/right: the JetBot defaults, or CONFIG=FILE), with
+#    --check-views and --turn-from-loops: OUT/poses/ is the tub with poses, its trace
+#    (poses.png), the view check (check-views.csv, .png) and replay.toml. A car's replay
+#    drives the calibrated car (sim.vehicle = "car").
+# 2. The recording is split by time: the earlier 1 - SPLIT (default SPLIT 0.3) is the
+#    training part, the latest SPLIT the held-out part. OUT/poses/early.toml and late.toml
+#    are replay.toml with `sim.recording_span` set to each: their own frames, their own road.
+# 3. Imitation: `train probe` (the frozen ImageNet EfficientNet-Lite0, its output layer fitted
+#    in closed form, 1x1 pooled so `train ddpg --init` takes it) on the training part's
+#    frames, speed_steering; `score` on the held-out frames.
+# 4. `eval` (EVAL_SECONDS, default 120) of the imitation policy on both replays; `train ddpg`
+#    (MINUTES, default 10) against the early replay from it; `eval` of DDPG's last.onnx and
+#    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
+#    is its held-out check).
+# 5. OUT/report.md: the poses' lines, the view check, the score and the eval table.
+#
+# BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
+# 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+TUB=${1:-}
+OUT=${2:-}
+SPLIT=${SPLIT:-0.3}
+MINUTES=${MINUTES:-10}
+EVAL_SECONDS=${EVAL_SECONDS:-120}
+SEED=${SEED:-0}
+if [ -z "$TUB" ] || [ -z "$OUT" ]; then
+  echo "usage: scripts/real-replay.sh TUB OUT: TUB is a recording (a tub folder), OUT the folder to write" >&2
+  exit 2
+fi
+if [ ! -f "$TUB/manifest.json" ]; then
+  echo "real-replay: $TUB/manifest.json not found: TUB must be a tub (DonkeyCar v2 or jetpilot's)" >&2
+  exit 2
+fi
+if [ -e "$OUT/poses" ]; then
+  echo "real-replay: $OUT/poses exists: give a new OUT (nothing is overwritten)" >&2
+  exit 2
+fi
+EARLY=$(awk -v s="$SPLIT" 'BEGIN { if (s <= 0 || s >= 1) exit 1; printf "%.4f", 1 - s }') || {
+  echo "real-replay: SPLIT must lie between 0 and 1, got '$SPLIT'" >&2
+  exit 2
+}
+if [ -z "${CONFIG:-}" ]; then
+  if grep -q 'wheels/left' "$TUB/manifest.json"; then CONFIG=""; else CONFIG=config/donkeycar.toml; fi
+fi
+ORT_DYLIB_PATH=$(scripts/install-onnxruntime.sh)
+export ORT_DYLIB_PATH
+scripts/install-imagenet-weights.sh > /dev/null
+if [ -n "${BIN:-}" ]; then
+  B=$BIN
+else
+  scripts/install-build-deps.sh
+  cargo build --release --features train --locked --quiet
+  B=target/release/jetpilot
+fi
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+TUB=$(cd "$TUB" && pwd)
+B=$(cd "$(dirname "$B")" && pwd)/$(basename "$B")
+CFG=()
+[ -n "$CONFIG" ] && CFG=(--config "$(cd "$(dirname "$CONFIG")" && pwd)/$(basename "$CONFIG")")
+
+echo "real-replay: poses of $TUB"
+"$B" poses --tub "$TUB" "${CFG[@]}" --out "$OUT/poses" --check-views --turn-from-loops \
+  > "$OUT/poses.log" 2>&1
+
+# The two replays: replay.toml with the span of each part (the serialiser writes the array
+# over several lines).
+span() {
+  sed "/^recording_span = \[/,/^\]/c\\recording_span = [$1, $2]" "$OUT/poses/replay.toml" > "$OUT/poses/$3"
+  grep -qF "recording_span = [$1, $2]" "$OUT/poses/$3" || {
+    echo "real-replay: replay.toml changed shape: recording_span not set in $OUT/poses/$3" >&2
+    exit 1
+  }
+}
+span 0.0 "$EARLY" early.toml
+span "$EARLY" 1.0 late.toml
+
+echo "real-replay: imitation on the earliest $EARLY of the frames"
+rm -rf "$OUT/il"
+"$B" -q train probe --data "$OUT/poses" --config "$OUT/poses/replay.toml" --head speed-steering \
+  --grid 1 --leave-latest "$SPLIT" -o "$OUT/il" > "$OUT/il.log" 2>&1
+"$B" -q score --model "$OUT/il/probe.onnx" --data "$OUT/poses" --config "$OUT/poses/replay.toml" \
+  --split-by-time "$SPLIT" --out "$OUT/score" > "$OUT/score.txt"
+
+evaluate() { # NAME MODEL: eval on both replays
+  for part in early late; do
+    (cd "$OUT/poses" && "$B" eval --config "$part.toml" --model "$2" --seconds "$EVAL_SECONDS" \
+      --json "$OUT/eval_$1_$part.json" --png "$OUT/eval_$1_$part.png" > "$OUT/eval_$1_$part.txt" 2>&1)
+  done
+}
+echo "real-replay: eval of the imitation policy"
+evaluate il "$OUT/il/probe.onnx"
+echo "real-replay: DDPG against the early replay, $MINUTES minutes"
+rm -rf "$OUT/ddpg"
+(cd "$OUT/poses" && "$B" train ddpg --sim early.toml --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" \
+  --minutes "$MINUTES" --eval-seconds 60 --eval-every 10 --seed "$SEED" > "$OUT/ddpg.log" 2>&1)
+evaluate ddpg_last "$OUT/ddpg/last.onnx"
+evaluate ddpg_best "$OUT/ddpg/best.onnx"
+
+# The report.
+field() { # FILE KEY: a number from eval's JSON
+  grep -m1 "\"$2\"" "$1" | sed 's/.*: *//; s/,$//'
+}
+row() { # NAME
+  local cells=""
+  for part in early late; do
+    local j="$OUT/eval_$1_$part.json"
+    cells="$cells | $(field "$j" interventions) | $(printf '%.0f' "$(field "$j" autonomy_percent)") % | $(printf '%.1f' "$(field "$j" distance_m)") m"
+  done
+  echo "| $1$cells |"
+}
+{
+  echo "# Real replay of $(basename "$TUB")"
+  echo
+  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
+  echo
+  echo "## Poses (\`poses/poses.png\`, \`poses/check-views.png\`)"
+  echo
+  echo '```'
+  grep -v '^20..-..-..T' "$OUT/poses.log"
+  echo '```'
+  echo
+  echo "## Imitation on the earliest $EARLY, scored on the latest $SPLIT of the frames"
+  echo
+  echo '```'
+  cat "$OUT/score.txt"
+  echo '```'
+  echo
+  echo "## Closed loop: $EVAL_SECONDS s on each replay (early: the training part; late: held out)"
+  echo
+  echo "| policy | early: interventions | autonomy | distance | late: interventions | autonomy | distance |"
+  echo "|---|---|---|---|---|---|---|"
+  row il
+  row ddpg_last
+  row ddpg_best
+  echo
+  echo "DDPG: $(grep -m1 '^DDPG:' "$OUT/ddpg.log" || echo 'no summary line')"
+  echo "Traces: \`eval_<policy>_<part>.png\`; DDPG's curve: \`ddpg/ddpg_curve.png\`."
+} > "$OUT/report.md"
+echo "real-replay: wrote $OUT/report.md"
