@@ -141,6 +141,7 @@ pub fn run(
                         &world.track,
                         &pose,
                         world.robot.params(),
+                        world.robot.car_params(),
                         params,
                         swerve,
                         &mut **rng,

@@ -15,9 +15,10 @@ use serde::{Deserialize, Serialize};
 
 use super::Pose2;
 use super::camera::CameraModel;
+use super::odometry::ackermann::CarParams;
 use super::robot::RobotParams;
 use super::track::Track;
-use crate::control::WheelCommand;
+use crate::control::{Mixing, WheelCommand};
 
 /// Pure-pursuit settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -118,11 +119,14 @@ pub fn duty_for_speed(v: f32, robot: &RobotParams) -> f32 {
 }
 
 /// The pure-pursuit command from `pose` on `track`; `swerve` adds that curvature (a
-/// deliberate swerve, see [`Swerves`]).
+/// deliberate swerve, see [`Swerves`]). With `car` (the simulator's car, `sim.vehicle =
+/// "car"`) the command is DonkeyCar's throttle and angle for that speed and curvature
+/// ([`Mixing::Car`]; past full lock the car turns no tighter), else the wheels' duties.
 pub fn pursue(
     track: &Track,
     pose: &Pose2,
     robot: &RobotParams,
+    car: Option<&CarParams>,
     p: &ExpertParams,
     swerve: Option<f32>,
     rng: &mut impl Rng,
@@ -147,10 +151,24 @@ pub fn pursue(
         .speed_mps
         .min((p.max_lateral_accel / kappa.abs().max(1e-6)).sqrt())
         .max(0.05);
-    let half = robot.wheel_base_m / 2.0;
-    let (vl, vr) = (v * (1.0 - kappa * half), v * (1.0 + kappa * half));
+    let wheels = match car {
+        Some(c) => {
+            let throttle = v / c.speed_per_throttle_mps.max(1e-6);
+            let angle = if c.curvature_per_unit.abs() > 1e-6 {
+                (kappa - c.curvature_offset) / c.curvature_per_unit
+            } else {
+                0.0
+            };
+            Mixing::Car.mix(throttle, angle)
+        }
+        None => {
+            let half = robot.wheel_base_m / 2.0;
+            let (vl, vr) = (v * (1.0 - kappa * half), v * (1.0 + kappa * half));
+            WheelCommand::new(duty_for_speed(vl, robot), duty_for_speed(vr, robot))
+        }
+    };
     ExpertAction {
-        wheels: WheelCommand::new(duty_for_speed(vl, robot), duty_for_speed(vr, robot)),
+        wheels,
         target: (goal.x, goal.y),
         curvature: kappa,
         speed: v,

@@ -1111,3 +1111,27 @@ fn the_simulated_car_gets_donkeycars_throttle_and_angle_through_the_virtual_hat(
     let err = Config::parse("[sim]\nvehicle = \"car\"\n", "bad.toml").unwrap_err();
     assert!(err.to_string().contains("control.mixing"), "{err}");
 }
+
+#[test]
+fn the_expert_drives_the_simulated_car_round_the_mat() {
+    // Pure pursuit as DonkeyCar's throttle and angle: a car that turns as tight as 0.17 m
+    // keeps to the mat's lane for two laps (1.96 in 2.2 laps' time: the speed lags).
+    let cfg = small_config(
+        "mixing = \"car\"\n[sim]\nvehicle = \"car\"\n[sim.car]\ncurvature_per_unit = -6.0\n",
+    );
+    let mut rig = setup::build(&cfg).unwrap();
+    assert!(rig.world.robot.car_params().is_some());
+    let mut pilot = Pilot::expert(cfg.sim.expert, 0);
+    let lap_s = rig.world.track.length() as f64 / cfg.sim.expert.speed_mps as f64;
+    closed_loop::run(
+        &mut rig.world,
+        &mut rig.motors,
+        &mut pilot,
+        &cfg.sim.loop_settings(lap_s * 2.2, &cfg),
+        (48, 48),
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(rig.world.stats.interventions, 0);
+    assert!(rig.world.laps() >= 1.9, "{} laps", rig.world.laps());
+}
