@@ -15,7 +15,9 @@
 # 3. Imitation: `train probe` (the frozen ImageNet EfficientNet-Lite0, its output layer fitted
 #    in closed form, 1x1 pooled so `train ddpg --init` takes it) on the training part's
 #    frames, speed_steering; `score` on the held-out frames.
-# 4. `eval` (EVAL_SECONDS, default 120) of the imitation policy on both replays; `train ddpg`
+# 4. `eval` (EVAL_SECONDS, default 120) on both replays of the scripted expert at the
+#    recording's mean speed (the bar: is the replay drivable?) and of the imitation policy;
+#    `train ddpg`
 #    (MINUTES, default 10) against the early replay from it; `eval` of DDPG's last.onnx and
 #    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
 #    is its held-out check).
@@ -91,20 +93,37 @@ rm -rf "$OUT/il"
 "$B" -q score --model "$OUT/il/probe.onnx" --data "$OUT/poses" --config "$OUT/poses/replay.toml" \
   --split-by-time "$SPLIT" --out "$OUT/score" > "$OUT/score.txt"
 
-evaluate() { # NAME MODEL: eval on both replays
+evaluate() { # NAME MODEL|--expert: eval on both replays
+  local pilot=(--model "$2")
+  [ "$2" = --expert ] && pilot=(--expert)
   for part in early late; do
-    (cd "$OUT/poses" && "$B" eval --config "$part.toml" --model "$2" --seconds "$EVAL_SECONDS" \
+    (cd "$OUT/poses" && "$B" eval --config "$part$3.toml" "${pilot[@]}" --seconds "$EVAL_SECONDS" \
       --json "$OUT/eval_$1_$part.json" --png "$OUT/eval_$1_$part.png" > "$OUT/eval_$1_$part.txt" 2>&1)
   done
 }
+# The bar: the scripted expert (pure pursuit, lookahead 0.22 m) at the recording's mean
+# speed, in replays that differ from the two above in [sim.expert] only.
+SPEED=$(awk -F, 'NR > 1 { if (n) d += sqrt(($3 - x) ^ 2 + ($4 - y) ^ 2); x = $3; y = $4; t = $2; n++ }
+  END { if (t > 0) printf "%.3f", d / t; else print "0.2" }' "$OUT/poses/poses.csv")
+for part in early late; do
+  sed -e "/^\[sim.expert\]/,/^\[/ s/^speed_mps = .*/speed_mps = $SPEED/" \
+    -e "/^\[sim.expert\]/,/^\[/ s/^max_lateral_accel = .*/max_lateral_accel = 100.0/" \
+    "$OUT/poses/$part.toml" > "$OUT/poses/${part}_expert.toml"
+  grep -qF "speed_mps = $SPEED" "$OUT/poses/${part}_expert.toml" || {
+    echo "real-replay: replay.toml changed shape: [sim.expert] speed_mps not set" >&2
+    exit 1
+  }
+done
+echo "real-replay: eval of the scripted expert at $SPEED m/s (the bar)"
+evaluate expert --expert _expert
 echo "real-replay: eval of the imitation policy"
-evaluate il "$OUT/il/probe.onnx"
+evaluate il "$OUT/il/probe.onnx" ""
 echo "real-replay: DDPG against the early replay, $MINUTES minutes"
 rm -rf "$OUT/ddpg"
 (cd "$OUT/poses" && "$B" train ddpg --sim early.toml --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" \
   --minutes "$MINUTES" --eval-seconds 60 --eval-every 10 --seed "$SEED" > "$OUT/ddpg.log" 2>&1)
-evaluate ddpg_last "$OUT/ddpg/last.onnx"
-evaluate ddpg_best "$OUT/ddpg/best.onnx"
+evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
+evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
 
 # The report.
 field() { # FILE KEY: a number from eval's JSON
@@ -139,11 +158,13 @@ row() { # NAME
   echo
   echo "| policy | early: interventions | autonomy | distance | late: interventions | autonomy | distance |"
   echo "|---|---|---|---|---|---|---|"
+  row expert
   row il
   row ddpg_last
   row ddpg_best
   echo
-  echo "DDPG: $(grep -m1 '^DDPG:' "$OUT/ddpg.log" || echo 'no summary line')"
+  grep -m1 '^DDPG:' "$OUT/ddpg.log" || echo "DDPG: no summary line in ddpg.log"
+  echo "expert: the scripted expert (pure pursuit) at the recording's mean speed, $SPEED m/s: the replay is drivable where it has no interventions."
   echo "Traces: \`eval_<policy>_<part>.png\`; DDPG's curve: \`ddpg/ddpg_curve.png\`."
 } > "$OUT/report.md"
 echo "real-replay: wrote $OUT/report.md"
