@@ -26,10 +26,16 @@
 # BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
 # 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
 set -euo pipefail
-cd "$(dirname "$0")/.."
 
 TUB=${1:-}
 OUT=${2:-}
+# Relative paths are the caller's: made absolute before the script moves to the repository.
+abs() { case "$1" in /*) echo "$1" ;; *) echo "$PWD/$1" ;; esac; }
+[ -n "$TUB" ] && TUB=$(abs "$TUB")
+[ -n "$OUT" ] && OUT=$(abs "$OUT")
+[ -n "${CONFIG:-}" ] && CONFIG=$(abs "$CONFIG")
+case "${BIN:-}" in */*) BIN=$(abs "$BIN") ;; ?*) BIN=$(command -v "$BIN") ;; esac
+cd "$(dirname "$0")/.."
 SPLIT=${SPLIT:-0.3}
 MINUTES=${MINUTES:-10}
 EVAL_SECONDS=${EVAL_SECONDS:-120}
@@ -64,14 +70,12 @@ else
   B=target/release/jetpilot
 fi
 mkdir -p "$OUT"
-OUT=$(cd "$OUT" && pwd)
-TUB=$(cd "$TUB" && pwd)
-B=$(cd "$(dirname "$B")" && pwd)/$(basename "$B")
+B=$(abs "$B")
 CFG=()
-[ -n "$CONFIG" ] && CFG=(--config "$(cd "$(dirname "$CONFIG")" && pwd)/$(basename "$CONFIG")")
+[ -n "$CONFIG" ] && CFG=(--config "$(abs "$CONFIG")")
 
 echo "real-replay: poses of $TUB"
-"$B" poses --tub "$TUB" "${CFG[@]}" --out "$OUT/poses" --check-views --turn-from-loops \
+"$B" poses --tub "$TUB" ${CFG[@]+"${CFG[@]}"} --out "$OUT/poses" --check-views --turn-from-loops \
   > "$OUT/poses.log" 2>&1
 
 # The two replays: replay.toml with the span of each part (the serialiser writes the array

@@ -631,6 +631,19 @@ impl Config {
         v.range("control.steering_bias", c.steering_bias, -0.5, 0.5)?;
         v.range("control.steering_ki", c.steering_ki, 0.0, 2.0)?;
         v.range("control.integral_limit", c.integral_limit, 0.0, 1.0)?;
+        if c.mixing == crate::control::Mixing::Car {
+            // The car's channels carry throttle and angle: a wheel's scale or offset would
+            // mix one into the other.
+            for (side, t) in [("left", &self.motors.left), ("right", &self.motors.right)] {
+                if t.alpha != 1.0 || t.beta != 0.0 {
+                    return Err(v.err(
+                        &format!("motors.{side}.alpha"),
+                        &format!("{} (beta {})", t.alpha, t.beta),
+                        "alpha 1 and beta 0 with control.mixing = \"car\": the channels carry the car's throttle and angle, not two wheels",
+                    ));
+                }
+            }
+        }
         let car_sim = self.sim.vehicle == crate::sim::setup::SimVehicle::Car;
         if (c.mixing == crate::control::Mixing::Car) != car_sim {
             let mixing = format!("{:?}", c.mixing).to_lowercase();

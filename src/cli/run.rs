@@ -140,6 +140,13 @@ fn teleop_parts(
     if cfg.gamepad.is_none() && remote.is_none() {
         return Ok(None);
     }
+    if cfg.control.mixing == jetpilot::control::Mixing::Car {
+        anyhow::bail!(
+            "control.mixing = \"car\" (the simulated DonkeyCar) drives without [gamepad] and \
+             [web] only: manual driving and the recorder mix and store a JetBot's wheel \
+             commands, which would reach the car as half its throttle and angle"
+        );
+    }
     let events = match cfg.gamepad.clone() {
         Some(g) => {
             let (tx, events) = tokio::sync::mpsc::channel(256);
@@ -253,7 +260,7 @@ pub(super) fn drive_with(
     }
     let motors = match motors {
         Some(m) => m,
-        None => setup::open_motors(cfg, clock.clone())?,
+        None => setup::open_motors_to_drive(cfg, clock.clone())?,
     };
     let (status_tx, status_rx) = tokio::sync::watch::channel(Default::default());
     let status_rx_web = status_tx.subscribe();

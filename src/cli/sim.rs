@@ -466,7 +466,8 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
             let now = super::unix_now();
             Some(
                 DemoRecorder::create(dir, args.record_xy.as_deref(), now, cfg.sim.seed)?
-                    .record_swerves(args.record_swerves),
+                    .record_swerves(args.record_swerves)
+                    .mixing(cfg.control.mixing),
             )
         }
         None => None,

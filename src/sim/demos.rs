@@ -3,8 +3,10 @@
 //! (frame, sim time, mode, the wheels sent, angle/throttle, pose, reward, JetBot target
 //! label), and optionally JetBot's road-following xy folder.
 //!
-//! Angle and throttle from tank-style wheel commands as the daemon's recorder stores them
-//! ([`angle_throttle`]).
+//! Angle and throttle from the wheel commands as the daemon's recorder stores them
+//! (`crate::drive::recorder::angle_throttle`: `(left - right) / 2`, `(left + right) / 2`),
+//! or, for the simulated car, the throttle and angle its channels carry
+//! ([`Mixing::unmix`]).
 
 use std::path::Path;
 
@@ -13,9 +15,9 @@ use rand_chacha::ChaCha8Rng;
 
 use super::closed_loop::StepRecord;
 use super::expert::target_label;
+use crate::control::Mixing;
 use crate::dataset::tub::{DriveMode, TubInputs, TubRecord, TubWriter};
 use crate::dataset::{DatasetError, jetbot_xy};
-use crate::drive::recorder::angle_throttle;
 
 /// Records simulated steps.
 pub struct DemoRecorder {
@@ -25,6 +27,7 @@ pub struct DemoRecorder {
     jpeg: Vec<u8>,
     written: u64,
     record_swerves: bool,
+    mixing: Mixing,
 }
 
 impl DemoRecorder {
@@ -50,6 +53,7 @@ impl DemoRecorder {
             jpeg: Vec::new(),
             written: 0,
             record_swerves: false,
+            mixing: Mixing::Differential,
         })
     }
 
@@ -58,6 +62,14 @@ impl DemoRecorder {
     /// path with `sim.road = "path"`; not demonstrations to imitate).
     pub fn record_swerves(mut self, on: bool) -> Self {
         self.record_swerves = on;
+        self
+    }
+
+    /// How the steps' wheel commands were mixed (`control.mixing`): `user/angle` and
+    /// `user/throttle` are read back through it (the simulated car's channels carry
+    /// DonkeyCar's throttle and angle, not half of them).
+    pub fn mixing(mut self, mixing: Mixing) -> Self {
+        self.mixing = mixing;
         self
     }
 
@@ -76,7 +88,7 @@ impl DemoRecorder {
                 source,
             },
         )?;
-        let (angle, throttle) = angle_throttle(step.wheels);
+        let (throttle, angle) = self.mixing.unmix(step.wheels);
         let mode = if step.expert.is_some() {
             DriveMode::User
         } else {

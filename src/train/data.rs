@@ -11,6 +11,8 @@
 //! speed_steering:  the steering law inverted on the wheels that were sent:
 //!                  speed    = clamp(((left + right) / 2) / speed_gain, 0, 1)
 //!                  steering = ((left - right) / 2) / steering_gain
+//!                  (`control.mixing = "car"`: `left + right` and `left - right`;
+//!                  `crate::dataset::labelled::LabelMap`)
 //! ```
 //!
 //! Only the human's steps (`user/mode = user`) of a tub are demonstrations; the autopilot's

@@ -1094,7 +1094,8 @@ fn the_simulated_car_gets_donkeycars_throttle_and_angle_through_the_virtual_hat(
         far = far.max((p.x - start.x).hypot(p.y - start.y));
     }
     let p = rig.world.robot.pose;
-    // The PCA9685's 12-bit duty rounds the channels: within 1 % of the radius.
+    // JetBot's 8-bit motor speed (0-255, truncated) carries the channels: within 1 % of
+    // the radius.
     assert!((far - 1.0).abs() < 0.01, "diameter {far}");
     assert!(
         (p.x - start.x).hypot(p.y - start.y) < 0.03,
@@ -1110,6 +1111,13 @@ fn the_simulated_car_gets_donkeycars_throttle_and_angle_through_the_virtual_hat(
     );
     let err = Config::parse("[sim]\nvehicle = \"car\"\n", "bad.toml").unwrap_err();
     assert!(err.to_string().contains("control.mixing"), "{err}");
+    // A wheel's trim would mix the car's throttle into its angle.
+    let err = Config::parse(
+        "[control]\nmixing = \"car\"\n[sim]\nvehicle = \"car\"\n[motors.right]\nalpha = 0.9\n",
+        "bad.toml",
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("motors.right.alpha"), "{err}");
 }
 
 #[test]
@@ -1134,4 +1142,41 @@ fn the_expert_drives_the_simulated_car_round_the_mat() {
     .unwrap();
     assert_eq!(rig.world.stats.interventions, 0);
     assert!(rig.world.laps() >= 1.9, "{} laps", rig.world.laps());
+}
+
+#[test]
+fn the_simulated_car_refuses_manual_driving_by_name() {
+    // The gamepad, the web page's sticks and the recorder mix and store a JetBot's wheel
+    // commands: with the car's mixing the daemon says so instead of driving it at half.
+    let dir = tempfile::tempdir().unwrap();
+    let model = common::write_model(dir.path(), 48, 4);
+    let cfg = dir.path().join("car.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[model]\npath = {model:?}\n[control]\nmixing = \"car\"\n[sim]\nvehicle = \"car\"\n\
+             [sim.camera]\nwidth = 48\nheight = 48\n"
+        ),
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args([
+            "-q",
+            "sim",
+            "--realtime",
+            "--seconds",
+            "2",
+            "--web",
+            "127.0.0.1:0",
+        ])
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("control.mixing") && err.contains("[gamepad]"),
+        "{err}"
+    );
 }

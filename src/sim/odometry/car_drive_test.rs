@@ -71,29 +71,23 @@ fn jpeg(rgb: Vec<u8>, w: u32, h: u32) -> Vec<u8> {
     out.into_inner()
 }
 
-#[test]
-fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
-    // The true car: 0.7 m/s at throttle 0.25, a 0.8 m radius at full lock, a trim that
-    // turns it 0.1 /m to the left at angle 0. The prior's defaults: 1 m/s, 0.5 m, none.
-    let truth_car = CarParams {
-        speed_per_throttle_mps: 2.8,
-        curvature_per_unit: -1.25,
-        curvature_offset: 0.1,
-        time_constant_s: 0.3,
-    };
-    let camera = CameraModel::donkeycar(160, 120);
-    let dir = tempfile::tempdir().expect("a temporary folder");
-    let tub_dir = dir.path().join("drive");
+/// Writes 4 s of a DonkeyCar drive at 20 Hz through `camera` to a new tub at `tub_dir`:
+/// straight, left at full lock, straight, half right, at throttle 0.25, the car `car`.
+/// Returns each record's index and true pose.
+fn write_drive(
+    tub_dir: &std::path::Path,
+    camera: &CameraModel,
+    car: CarParams,
+) -> Vec<(u64, Pose2)> {
     let mut writer =
-        TubWriter::create(&tub_dir, &TubInputs::DONKEY, 1_700_000_000.0).expect("a new tub");
-    // 4 s at 20 Hz: straight, left at full lock, straight, half right.
+        TubWriter::create(tub_dir, &TubInputs::DONKEY, 1_700_000_000.0).expect("a new tub");
     let angle_at = |k: usize| match k {
         0..20 => 0.0,
         20..45 => -1.0,
         45..60 => 0.0,
         _ => 0.5,
     };
-    let mut car = CarOdometry::new(truth_car);
+    let mut car = CarOdometry::new(car);
     let mut pose = Pose2::default();
     let mut truth = Vec::new();
     for k in 0..80usize {
@@ -108,12 +102,28 @@ fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
             DriveMode::User,
         );
         let index = writer
-            .append(&rec, &jpeg(render(&camera, &pose), 160, 120))
+            .append(&rec, &jpeg(render(camera, &pose), 160, 120))
             .expect("a record");
         truth.push((index, pose));
     }
     writer.flush_and_sync().expect("the tub on disk");
-    drop(writer);
+    truth
+}
+
+#[test]
+fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
+    // The true car: 0.7 m/s at throttle 0.25, a 0.8 m radius at full lock, a trim that
+    // turns it 0.1 /m to the left at angle 0. The prior's defaults: 1 m/s, 0.5 m, none.
+    let truth_car = CarParams {
+        speed_per_throttle_mps: 2.8,
+        curvature_per_unit: -1.25,
+        curvature_offset: 0.1,
+        time_constant_s: 0.3,
+    };
+    let camera = CameraModel::donkeycar(160, 120);
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let tub_dir = dir.path().join("drive");
+    let truth = write_drive(&tub_dir, &camera, truth_car);
     let tub = TubReader::open(&tub_dir).expect("the tub");
     let vehicle = Vehicle::for_tub(&tub, RobotParams::default(), CarParams::default());
     assert!(matches!(vehicle, Vehicle::Car(_)), "no wheel keys: the car");
@@ -190,5 +200,74 @@ fn a_generated_ackermann_drive_is_recovered_within_its_drift() {
     assert!(
         d.final_error_m < b.final_error_m / 3.0,
         "{d} against the prior's {b}"
+    );
+}
+
+#[test]
+fn a_car_tubs_replay_drives_its_calibrated_car() {
+    // The drive above, its poses estimated, written with the replay config `poses` writes:
+    // the replay's vehicle is the calibrated car in the tub's own angle convention
+    // (negative curvature per unit: angle -1 steers left), and the scripted expert drives
+    // its road as that car without an intervention.
+    let camera = CameraModel::donkeycar(160, 120);
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let tub_dir = dir.path().join("drive");
+    let truth_car = CarParams {
+        speed_per_throttle_mps: 2.8,
+        curvature_per_unit: -1.25,
+        curvature_offset: 0.0,
+        time_constant_s: 0.3,
+    };
+    write_drive(&tub_dir, &camera, truth_car);
+    let tub = TubReader::open(&tub_dir).expect("the tub");
+    let params = OdometryParams {
+        grid: ViewGrid::donkeycar(),
+        levels: 2,
+        ..OdometryParams::default()
+    };
+    let vehicle = Vehicle::Car(CarParams::default());
+    let est = estimate(
+        &tub,
+        &camera,
+        vehicle,
+        params,
+        Pose2::default(),
+        ReadOptions::default(),
+    )
+    .expect("an estimate");
+    let car = est.car.expect("a car's calibration");
+    assert!(car.curvature_per_unit < 0.0, "{car:?}");
+    let mut base = crate::config::Config::default();
+    base.sim.camera = camera;
+    let text = output::replay_config(&base, "a test", est.car).expect("the replay config");
+    let out = dir.path().join("drive-poses");
+    output::write_tub(
+        &tub,
+        &est,
+        &out,
+        1.7e9,
+        output::Labels::Keep,
+        &[(output::REPLAY_CONFIG, text)],
+    )
+    .expect("the tub with poses");
+    let cfg = crate::config::Config::load(&out.join(output::REPLAY_CONFIG)).expect("replay.toml");
+    assert_eq!(cfg.sim.vehicle, crate::sim::setup::SimVehicle::Car);
+    let mut rig = crate::sim::setup::build(&cfg).expect("the replay");
+    assert_eq!(rig.world.robot.car_params(), Some(&car));
+    let mut pilot = crate::sim::closed_loop::Pilot::expert(cfg.sim.expert, 0);
+    crate::sim::closed_loop::run(
+        &mut rig.world,
+        &mut rig.motors,
+        &mut pilot,
+        &cfg.sim.loop_settings(8.0, &cfg),
+        (camera.width, camera.height),
+        |_| {},
+    )
+    .expect("the drive");
+    assert_eq!(rig.world.stats.interventions, 0);
+    assert!(
+        rig.world.stats.distance_m > 1.2,
+        "{} m",
+        rig.world.stats.distance_m
     );
 }

@@ -75,7 +75,8 @@ pub fn replay_commands(config: &Path) -> [String; 2] {
 /// With `car` (a car-like recording: the calibrated [`CarParams`] in the tub's own angle
 /// convention) the replay's vehicle is that car (`sim.vehicle = "car"`, `[sim.car]`), and
 /// the law hands it the model's throttle and angle as DonkeyCar's pilot does:
-/// `control.mixing = "car"`, speed and steering gains 1, no derivative, integral or bias.
+/// `control.mixing = "car"`, speed and steering gains 1, no derivative, integral or bias,
+/// and no motor trims.
 pub fn replay_config(
     base: &Config,
     made_from: &str,
@@ -99,6 +100,11 @@ pub fn replay_config(
             mixing: Mixing::Car,
             ..cfg.control
         };
+        // The channels carry throttle and angle: no wheel's trim between them.
+        for t in [&mut cfg.motors.left, &mut cfg.motors.right] {
+            t.alpha = 1.0;
+            t.beta = 0.0;
+        }
         car_note = "# The car: [sim.car] is what the frames say this car does (calibrated by `poses`, in\n\
                     # the tub's own angle convention), and [control] passes a speed_steering model's\n\
                     # (throttle, angle) to it unchanged, as DonkeyCar's pilot does.\n"
@@ -304,7 +310,9 @@ mod tests {
             curvature_per_unit: 2.6,
             ..CarParams::default()
         };
-        let text = replay_config(&Config::default(), "a test", Some(car)).unwrap();
+        let mut trimmed = Config::default();
+        trimmed.motors.right.alpha = 0.9;
+        let text = replay_config(&trimmed, "a test", Some(car)).unwrap();
         let cfg = Config::parse(&text, "replay.toml").unwrap();
         assert_eq!(cfg.sim.vehicle, SimVehicle::Car);
         assert_eq!(cfg.sim.car, car);
