@@ -112,18 +112,25 @@ pub struct PosesArgs {
 }
 
 /// The calibration's lines: the wheel model's corrections and vision's scatter.
-fn print_calibration(est: &odometry::Estimate) {
+fn print_calibration(est: &odometry::Estimate, params: &OdometryParams) {
     if let Some(n) = est.masked_pixels() {
         println!("chassis mask:    {n} pixels left out of registration");
     }
-    if let (Some(sc), Some(car)) = (est.scales, est.car) {
+    if let (Some(sc), Some(car)) = (est.scales, replay_car(est, params)) {
         println!(
             "car model:       speed x{:.3} ({} frames), turn x{:.3} and offset {:+.3} rad/m ({} frames), calibrated from the frames",
             sc.speed, sc.speed_frames, sc.turn, sc.offset, sc.turn_frames
         );
         println!(
-            "                 {:.2} m/s per unit throttle, curvature {:+.3} /m per unit angle {:+.3} /m",
-            car.speed_per_throttle_mps, car.curvature_per_unit, car.curvature_offset
+            "                 {:.2} m/s per unit throttle, curvature {:+.3} /m per unit angle {:+.3} /m{}",
+            car.speed_per_throttle_mps,
+            car.curvature_per_unit,
+            car.curvature_offset,
+            if params.reverse_turn {
+                " (in the tub's own angle convention, its sign reversed: what replay.toml drives)"
+            } else {
+                " (what replay.toml drives)"
+            }
         );
     } else if let Some(sc) = est.scales {
         println!(
@@ -307,7 +314,7 @@ pub fn main(args: PosesArgs) -> anyhow::Result<ExitCode> {
     let n = output::write_tub(&tub, &est, &out, super::unix_now(), Labels::Keep, &[replay])?;
     output::write_csv(&est, &out.join("poses.csv"))?;
     output::trace_png(&est, None, &out.join("poses.png"))?;
-    print_calibration(&est);
+    print_calibration(&est, &params);
     let flagged = est.flagged().saturating_sub(1);
     let length: f32 = est
         .poses
@@ -432,7 +439,7 @@ fn check_against_truth(
         .filter_map(|p| truth.get(&p.index).copied())
         .collect();
     output::trace_png(&est, Some(&truth_path), &png)?;
-    print_calibration(&est);
+    print_calibration(&est, &params);
     println!("visual + wheels: {d}");
     println!(
         "                 {} of {} frames from the wheels alone",
