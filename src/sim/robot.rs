@@ -217,6 +217,12 @@ impl Robot {
             vl *= 1.0 + sigma * nl;
             vr *= 1.0 + sigma * nr;
         }
+        self.move_along(vl, vr, dt);
+    }
+
+    /// The pose moved along the exact arc of constant wheel speeds `vl`, `vr` (m/s) at the
+    /// configured base for `dt` seconds.
+    fn move_along(&mut self, vl: f64, vr: f64, dt: f32) {
         let (x, y, h) = integrate(
             f64::from(self.pose.x),
             f64::from(self.pose.y),
@@ -261,16 +267,7 @@ impl Robot {
         let (vl, vr) = (v * (1.0 - k * b / 2.0), v * (1.0 + k * b / 2.0));
         self.v_left = speed * (1.0 - (k * b / 2.0) as f32);
         self.v_right = speed * (1.0 + (k * b / 2.0) as f32);
-        let (x, y, h) = integrate(
-            f64::from(self.pose.x),
-            f64::from(self.pose.y),
-            f64::from(self.pose.heading),
-            vl,
-            vr,
-            b,
-            f64::from(dt),
-        );
-        self.pose = Pose2::new(x as f32, y as f32, wrap_angle(h as f32));
+        self.move_along(vl, vr, dt);
     }
 }
 
