@@ -21,7 +21,13 @@
 #    (MINUTES, default 10) against the early replay from it; `eval` of DDPG's last.onnx and
 #    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
 #    is its held-out check).
-# 5. OUT/report.md: the poses' lines, the view check, the score and the eval table.
+#    DDPG's demonstrations (DEMOS=expert, the default): the scripted expert drives the early
+#    replay for 60 s with a swerve every 3 s on average, and only its ways back are recorded
+#    (OUT/demos, with the replay's rewards): recovery demonstrations of the training part,
+#    which a human's tub lacks (it has neither swerves nor rewards). DEMOS=none runs DDPG
+#    without. DDPG_FLAGS adds flags to `train ddpg` (e.g. "--search-step 0.1").
+# 5. OUT/report.md: the poses' lines, the view check, the score, the eval table and DDPG's
+#    evaluations during training (start, median, range) and its critic's mean Q.
 #
 # BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
 # 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
@@ -40,6 +46,8 @@ SPLIT=${SPLIT:-0.3}
 MINUTES=${MINUTES:-10}
 EVAL_SECONDS=${EVAL_SECONDS:-120}
 SEED=${SEED:-0}
+DEMOS=${DEMOS:-expert}
+DDPG_FLAGS=${DDPG_FLAGS:-}
 if [ -z "$TUB" ] || [ -z "$OUT" ]; then
   echo "usage: scripts/real-replay.sh TUB OUT: TUB is a recording (a tub folder), OUT the folder to write" >&2
   exit 2
@@ -52,6 +60,11 @@ if [ -e "$OUT/poses" ]; then
   echo "real-replay: $OUT/poses exists: give a new OUT (nothing is overwritten)" >&2
   exit 2
 fi
+case "$DEMOS" in expert | none) ;; *)
+  echo "real-replay: DEMOS must be expert or none, got '$DEMOS'" >&2
+  exit 2
+  ;;
+esac
 EARLY=$(awk -v s="$SPLIT" 'BEGIN { if (s <= 0 || s >= 1) exit 1; printf "%.4f", 1 - s }') || {
   echo "real-replay: SPLIT must lie between 0 and 1, got '$SPLIT'" >&2
   exit 2
@@ -122,10 +135,20 @@ echo "real-replay: eval of the scripted expert at $SPEED m/s (the bar)"
 evaluate expert --expert _expert
 echo "real-replay: eval of the imitation policy"
 evaluate il "$OUT/il/probe.onnx" ""
+DEMO_ARGS=()
+if [ "$DEMOS" = expert ]; then
+  echo "real-replay: the expert's recovery demonstrations in the early replay"
+  rm -rf "$OUT/demos"
+  (cd "$OUT/poses" && "$B" sim --config early_expert.toml --expert --seconds 60 --swerve-every 3 \
+    --record-every 3 --record "$OUT/demos" > "$OUT/demos.log" 2>&1)
+  DEMO_ARGS=(--demos "$OUT/demos")
+fi
 echo "real-replay: DDPG against the early replay, $MINUTES minutes"
 rm -rf "$OUT/ddpg"
+# shellcheck disable=SC2086 # DDPG_FLAGS is a list of flags
 (cd "$OUT/poses" && "$B" train ddpg --sim early.toml --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" \
-  --minutes "$MINUTES" --eval-seconds 60 --eval-every 10 --seed "$SEED" > "$OUT/ddpg.log" 2>&1)
+  ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds 60 --eval-every 10 \
+  --seed "$SEED" $DDPG_FLAGS > "$OUT/ddpg.log" 2>&1)
 evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
 evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
 
@@ -168,6 +191,28 @@ row() { # NAME
   row ddpg_best
   echo
   grep -m1 '^DDPG:' "$OUT/ddpg.log" || echo "DDPG: no summary line in ddpg.log"
+  echo
+  if [ "$DEMOS" = expert ]; then
+    echo "Demonstrations: $(grep -m1 '^recorded' "$OUT/demos.log" || echo 'none recorded'), the expert's drive: $(grep -m1 ' interventions ' "$OUT/demos.log" | tr -s ' ')."
+  else
+    echo "Demonstrations: none (DEMOS=none)."
+  fi
+  echo "DDPG flags: ${DDPG_FLAGS:-the defaults}."
+  # ddpg_eval.csv: episode,env_steps,wall_s,interventions,...; the first row is the start.
+  awk -F, 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
+    END {
+      if (!n) { print "DDPG evaluations (60 s, early replay): only the start"; exit }
+      for (i = 1; i <= n; i++) for (j = i + 1; j <= n; j++) if (v[j] < v[i]) { t = v[i]; v[i] = v[j]; v[j] = t }
+      m = (n % 2) ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
+      printf "DDPG evaluations (60 s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", s, n, m, v[1], v[n]
+    }' "$OUT/ddpg/ddpg_eval.csv"
+  # ddpg_episodes.csv: ...,critic_loss,mean_q (columns 8, 9); the first and the last tenth.
+  awk -F, 'NR > 1 && $9 != "NaN" && $9 != "" { q[++n] = $9; l[n] = $8 }
+    END {
+      if (n < 10) exit
+      k = int(n / 10); for (i = 1; i <= k; i++) { a += q[i]; b += q[n - k + i]; c += l[i]; d += l[n - k + i] }
+      printf "Critic: mean Q %.1f over the first tenth of the episodes, %.1f over the last; critic loss %.1f, then %.1f\n", a / k, b / k, c / k, d / k
+    }' "$OUT/ddpg/ddpg_episodes.csv"
   echo "expert: the scripted expert (pure pursuit) at the recording's mean speed, $SPEED m/s: the replay is drivable where it has no interventions."
   echo "Traces: \`eval_<policy>_<part>.png\`; DDPG's curve: \`ddpg/ddpg_curve.png\`."
 } > "$OUT/report.md"

@@ -18,7 +18,7 @@ pub enum TrainCommand {
     Il(super::train_il::IlArgs),
     /// DDPG fine-tuning in the replayed-frame simulator, bootstrapped with the imitation
     /// policy and the demonstrations' rewards (DDPGfD). Writes best.onnx (highest autonomy
-    /// in the 600 s test).
+    /// in the 600 s test among the policies that still drive).
     #[cfg(feature = "train")]
     Ddpg(super::train_ddpg::DdpgArgs),
     /// Fit a pretrained backbone's output layer in closed form (ridge regression on its

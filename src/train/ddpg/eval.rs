@@ -1,6 +1,7 @@
 //! The paper's test protocol during training: the same closed loop as `jetpilot eval`
 //! (daemon per-frame code, steering law, PCA9685 driver on the virtual HAT, interventions put
-//! the robot back on the lane), driven by the actor being trained.
+//! the robot back on the lane), driven by the actor being trained, and which of its
+//! evaluations is the best so far ([`improves_on`]).
 
 use crate::config::Config;
 use crate::drive::DriveParams;
@@ -68,4 +69,76 @@ pub fn evaluate(
         laps: rig.world.laps(),
         wall_seconds: times.total,
     })
+}
+
+/// Whether `candidate` replaces `best` as the run's best evaluation: a higher autonomy, then
+/// more rewards, among the evaluations that still drive. An evaluation that earns fewer than
+/// half the rewards of the `start` (the evaluation before any update) does not drive: a
+/// policy that stops has few interventions (only the stall rule's, one every few seconds)
+/// and so a higher autonomy than one that drives and leaves the road (a DonkeyCar replay's
+/// run: 5 interventions and 0 rewards in 60 s against the start's 19 and 721). Without a
+/// `start` (the candidate is the start) every evaluation counts.
+pub fn improves_on(
+    candidate: &EvalOutcome,
+    best: Option<&EvalOutcome>,
+    start: Option<&EvalOutcome>,
+) -> bool {
+    let drives = start.is_none_or(|s| candidate.rewards.saturating_mul(2) >= s.rewards);
+    drives
+        && best.is_none_or(|b| {
+            (candidate.autonomy_percent, candidate.rewards) > (b.autonomy_percent, b.rewards)
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outcome(interventions: u32, rewards: u64) -> EvalOutcome {
+        EvalOutcome {
+            seconds: 60.0,
+            interventions,
+            causes: InterventionCauses::default(),
+            autonomy_percent: autonomy(interventions, 60.0),
+            rewards,
+            mean_reward: 0.0,
+            laps: 0.0,
+            wall_seconds: 1.0,
+        }
+    }
+
+    #[test]
+    fn a_policy_that_stops_is_never_the_best() {
+        // The run that found this: the start 19 interventions and 721 rewards in 60 s
+        // (autonomy -90 %); a later actor that stands still, 5 stall interventions and 0
+        // rewards (autonomy 50 %); a later one that drives, 8 and 697 (autonomy 20 %).
+        let start = outcome(19, 721);
+        assert!(
+            improves_on(&start, None, None),
+            "the start is the first best"
+        );
+        let stopped = outcome(5, 0);
+        assert!(!improves_on(&stopped, Some(&start), Some(&start)));
+        let driving = outcome(8, 697);
+        assert!(improves_on(&driving, Some(&start), Some(&start)));
+        // Half the start's rewards still drives (721 / 2 = 360.5: 361 does, 360 does not).
+        assert!(improves_on(&outcome(8, 361), Some(&start), Some(&start)));
+        assert!(!improves_on(&outcome(8, 360), Some(&start), Some(&start)));
+    }
+
+    #[test]
+    fn autonomy_first_then_rewards() {
+        let start = outcome(19, 721);
+        let best = outcome(8, 697);
+        assert!(!improves_on(&outcome(9, 900), Some(&best), Some(&start)));
+        assert!(
+            !improves_on(&outcome(8, 697), Some(&best), Some(&start)),
+            "a tie keeps the best"
+        );
+        assert!(improves_on(&outcome(8, 698), Some(&best), Some(&start)));
+        assert!(improves_on(&outcome(7, 400), Some(&best), Some(&start)));
+        // A start that earned nothing (DDPG from random weights) lets every evaluation count.
+        let idle = outcome(10, 0);
+        assert!(improves_on(&outcome(9, 0), Some(&idle), Some(&idle)));
+    }
 }

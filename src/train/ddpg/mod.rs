@@ -12,7 +12,7 @@
 //!                  n-step transitions into the replay; leaving the road ends it
 //!     updates between episodes: updates_per_step x the episode's steps
 //!     every `eval_every` episodes: evaluate; a higher autonomy (then more rewards)
-//!     replaces best.onnx
+//!     replaces best.onnx, unless it earns under half the start's rewards (it stopped)
 //! ```
 //!
 //! The backbone is frozen by default (the CPU choice): features are computed once per frame
@@ -39,7 +39,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use self::agent::{Agent, AgentConfig};
-use self::eval::{EvalOutcome, evaluate};
+use self::eval::{EvalOutcome, evaluate, improves_on};
 use self::features::{Backbone, FeatureActor, Head};
 use self::noise::{Noise, NoiseKind};
 use self::replay::{NStep, Replay, Step};
@@ -366,13 +366,11 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
             outcome.mean_reward,
             outcome.laps,
         ])?;
-        let better = match &self.best {
-            None => true,
-            Some(b) => {
-                (outcome.autonomy_percent, outcome.rewards)
-                    > (b.outcome.autonomy_percent, b.outcome.rewards)
-            }
-        };
+        let better = improves_on(
+            &outcome,
+            self.best.as_ref().map(|b| &b.outcome),
+            self.points.first().map(|p| &p.outcome),
+        );
         if better {
             write_net_weights(&actor.weights, self.contract, &best_path(&self.opts.out))?;
             self.best = Some(point);
