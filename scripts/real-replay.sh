@@ -25,7 +25,11 @@
 #    replay for 60 s with a swerve every 3 s on average, and only its ways back are recorded
 #    (OUT/demos, with the replay's rewards): recovery demonstrations of the training part,
 #    which a human's tub lacks (it has neither swerves nor rewards). DEMOS=none runs DDPG
-#    without. DDPG_FLAGS adds flags to `train ddpg` (e.g. "--search-step 0.1").
+#    without. DDPG_FLAGS are `train ddpg`'s flags beyond these; the default is the recipe
+#    chosen on the early replay (docs/results/real-replay.md, "DDPG on the replay"): policy
+#    improvement by search, the anchor to the imitation policy kept, half the episodes
+#    started before an earlier failure, OU noise on the steering. DDPG_FLAGS= (empty) runs
+#    `train ddpg`'s own defaults.
 # 5. OUT/report.md: the poses' lines, the view check, the score, the eval table and DDPG's
 #    evaluations during training (start, median, range) and its critic's mean Q.
 #
@@ -47,7 +51,7 @@ MINUTES=${MINUTES:-10}
 EVAL_SECONDS=${EVAL_SECONDS:-120}
 SEED=${SEED:-0}
 DEMOS=${DEMOS:-expert}
-DDPG_FLAGS=${DDPG_FLAGS:-}
+DDPG_FLAGS=${DDPG_FLAGS---search-step 0.1 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
 if [ -z "$TUB" ] || [ -z "$OUT" ]; then
   echo "usage: scripts/real-replay.sh TUB OUT: TUB is a recording (a tub folder), OUT the folder to write" >&2
   exit 2

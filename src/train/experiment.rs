@@ -23,6 +23,7 @@ use serde::Deserialize;
 
 use super::TrainError;
 use super::curve::{Band, Series, plot_png_with_bands, read_csv};
+use super::ddpg::eval::improves_on;
 
 /// One evaluation (the paper's 600 s test) at a wall time.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,12 +45,15 @@ pub struct Run {
 }
 
 /// The best point at or before `t` (highest autonomy, then most rewards; the earlier on a
-/// tie), as the trainer's best.onnx is chosen; `None` before the first evaluation.
+/// tie; never one with under half the first point's rewards), as the trainer's best.onnx is
+/// chosen ([`improves_on`]); `None` before the first evaluation.
 pub fn best_by(points: &[Point], t: f64) -> Option<Point> {
+    let score = |p: &Point| (p.autonomy, p.rewards);
+    let start = points.first().map(score);
     let mut best: Option<Point> = None;
     for p in points.iter().filter(|p| p.wall_s <= t) {
-        let better = best.is_none_or(|b| (p.autonomy, p.rewards) > (b.autonomy, b.rewards));
-        if better {
+        // The first point passes the start's test against itself.
+        if improves_on(score(p), best.as_ref().map(score), start) {
             best = Some(*p);
         }
     }
@@ -425,6 +429,11 @@ mod tests {
         assert_eq!(best_by(&pts, 150.0), Some(pts[1]));
         // Same autonomy, more rewards: the later one.
         assert_eq!(best_by(&pts, 1e9), Some(pts[2]));
+        // A policy that stands still (under half the first point's 900 rewards) is never
+        // the best, however few its interventions.
+        let stopped = [pts[0], p(120.0, 1.0, 449.0), p(180.0, 5.0, 450.0)];
+        assert_eq!(best_by(&stopped, 150.0), Some(pts[0]));
+        assert_eq!(best_by(&stopped, 1e9), Some(stopped[2]));
     }
 
     #[test]

@@ -283,18 +283,20 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
     // The exported best policy, run by `jetpilot eval` on ONNX Runtime, drives as the
     // in-training evaluation that chose it.
     let best_eval: Vec<f64> = {
-        let mut best: Option<Vec<f64>> = None;
-        for r in &evals {
-            let v: Vec<f64> = r.split(',').map(|x| x.parse().unwrap()).collect();
-            let better = match &best {
-                None => true,
-                Some(b) => (v[4], v[5]) > (b[4], b[5]),
-            };
-            if better {
+        // The trainer's rule (train::ddpg::eval::improves_on): autonomy, then rewards, among
+        // the evaluations with at least half the start's rewards.
+        let rows: Vec<Vec<f64>> = evals
+            .iter()
+            .map(|r| r.split(',').map(|x| x.parse().unwrap()).collect())
+            .collect();
+        let mut best: Option<&Vec<f64>> = None;
+        for v in &rows {
+            let drives = 2.0 * v[5] >= rows[0][5];
+            if drives && best.is_none_or(|b| (v[4], v[5]) > (b[4], b[5])) {
                 best = Some(v);
             }
         }
-        best.unwrap()
+        best.unwrap().clone()
     };
     let json = dir.path().join("eval.json");
     ok(&jetpilot(

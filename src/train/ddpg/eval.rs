@@ -71,30 +71,33 @@ pub fn evaluate(
     })
 }
 
+/// What the best evaluation is chosen by: (autonomy in percent, rewards).
+pub type Score = (f64, f64);
+
+impl EvalOutcome {
+    pub fn score(&self) -> Score {
+        (f64::from(self.autonomy_percent), self.rewards as f64)
+    }
+}
+
 /// Whether `candidate` replaces `best` as the run's best evaluation: a higher autonomy, then
 /// more rewards, among the evaluations that still drive. An evaluation that earns fewer than
 /// half the rewards of the `start` (the evaluation before any update) does not drive: a
 /// policy that stops has few interventions (only the stall rule's, one every few seconds)
 /// and so a higher autonomy than one that drives and leaves the road (a DonkeyCar replay's
 /// run: 5 interventions and 0 rewards in 60 s against the start's 19 and 721). Without a
-/// `start` (the candidate is the start) every evaluation counts.
-pub fn improves_on(
-    candidate: &EvalOutcome,
-    best: Option<&EvalOutcome>,
-    start: Option<&EvalOutcome>,
-) -> bool {
-    let drives = start.is_none_or(|s| candidate.rewards.saturating_mul(2) >= s.rewards);
-    drives
-        && best.is_none_or(|b| {
-            (candidate.autonomy_percent, candidate.rewards) > (b.autonomy_percent, b.rewards)
-        })
+/// `start` (the candidate is the start) every evaluation counts. `train report` picks by
+/// the same rule ([`crate::train::experiment::best_by`]).
+pub fn improves_on(candidate: Score, best: Option<Score>, start: Option<Score>) -> bool {
+    let drives = start.is_none_or(|s| 2.0 * candidate.1 >= s.1);
+    drives && best.is_none_or(|b| candidate > b)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn outcome(interventions: u32, rewards: u64) -> EvalOutcome {
+    fn outcome(interventions: u32, rewards: u64) -> Score {
         EvalOutcome {
             seconds: 60.0,
             interventions,
@@ -105,6 +108,7 @@ mod tests {
             laps: 0.0,
             wall_seconds: 1.0,
         }
+        .score()
     }
 
     #[test]
@@ -114,31 +118,31 @@ mod tests {
         // rewards (autonomy 50 %); a later one that drives, 8 and 697 (autonomy 20 %).
         let start = outcome(19, 721);
         assert!(
-            improves_on(&start, None, None),
+            improves_on(start, None, None),
             "the start is the first best"
         );
         let stopped = outcome(5, 0);
-        assert!(!improves_on(&stopped, Some(&start), Some(&start)));
+        assert!(!improves_on(stopped, Some(start), Some(start)));
         let driving = outcome(8, 697);
-        assert!(improves_on(&driving, Some(&start), Some(&start)));
+        assert!(improves_on(driving, Some(start), Some(start)));
         // Half the start's rewards still drives (721 / 2 = 360.5: 361 does, 360 does not).
-        assert!(improves_on(&outcome(8, 361), Some(&start), Some(&start)));
-        assert!(!improves_on(&outcome(8, 360), Some(&start), Some(&start)));
+        assert!(improves_on(outcome(8, 361), Some(start), Some(start)));
+        assert!(!improves_on(outcome(8, 360), Some(start), Some(start)));
     }
 
     #[test]
     fn autonomy_first_then_rewards() {
         let start = outcome(19, 721);
         let best = outcome(8, 697);
-        assert!(!improves_on(&outcome(9, 900), Some(&best), Some(&start)));
+        assert!(!improves_on(outcome(9, 900), Some(best), Some(start)));
         assert!(
-            !improves_on(&outcome(8, 697), Some(&best), Some(&start)),
+            !improves_on(outcome(8, 697), Some(best), Some(start)),
             "a tie keeps the best"
         );
-        assert!(improves_on(&outcome(8, 698), Some(&best), Some(&start)));
-        assert!(improves_on(&outcome(7, 400), Some(&best), Some(&start)));
+        assert!(improves_on(outcome(8, 698), Some(best), Some(start)));
+        assert!(improves_on(outcome(7, 400), Some(best), Some(start)));
         // A start that earned nothing (DDPG from random weights) lets every evaluation count.
         let idle = outcome(10, 0);
-        assert!(improves_on(&outcome(9, 0), Some(&idle), Some(&idle)));
+        assert!(improves_on(outcome(9, 0), Some(idle), Some(idle)));
     }
 }

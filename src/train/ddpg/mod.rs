@@ -367,9 +367,9 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
             outcome.laps,
         ])?;
         let better = improves_on(
-            &outcome,
-            self.best.as_ref().map(|b| &b.outcome),
-            self.points.first().map(|p| &p.outcome),
+            outcome.score(),
+            self.best.map(|b| b.outcome.score()),
+            self.points.first().map(|p| p.outcome.score()),
         );
         if better {
             write_net_weights(&actor.weights, self.contract, &best_path(&self.opts.out))?;
@@ -377,7 +377,8 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
         }
         self.points.push(point);
         (self.on_eval)(&point, better);
-        Ok(self.opts.stop_at_full_autonomy && outcome.interventions == 0)
+        // Only a policy that drives (and so became best.onnx) ends the run at full autonomy.
+        Ok(self.opts.stop_at_full_autonomy && outcome.interventions == 0 && better)
     }
 }
 
