@@ -22,8 +22,8 @@
 #    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
 #    is its held-out check).
 #    DDPG's demonstrations (DEMOS=expert, the default): the scripted expert drives the early
-#    replay for 60 s with a swerve every 3 s on average, and only its ways back are recorded
-#    (OUT/demos, with the replay's rewards): recovery demonstrations of the training part,
+#    replay for 60 s with a swerve every 3 s on average, and only its ways back are recorded,
+#    every third control step (OUT/demos, with the replay's rewards): recovery demonstrations of the training part,
 #    which a human's tub lacks (it has neither swerves nor rewards). DEMOS=none runs DDPG
 #    without. DDPG_FLAGS are `train ddpg`'s flags beyond these; the default is the recipe
 #    chosen on the early replay (docs/results/real-replay.md, "DDPG on the replay"): policy
@@ -197,26 +197,27 @@ row() { # NAME
   grep -m1 '^DDPG:' "$OUT/ddpg.log" || echo "DDPG: no summary line in ddpg.log"
   echo
   if [ "$DEMOS" = expert ]; then
-    echo "Demonstrations: $(grep -m1 '^recorded' "$OUT/demos.log" || echo 'none recorded'), the expert's drive: $(grep -m1 ' interventions ' "$OUT/demos.log" | tr -s ' ')."
+    echo "- Demonstrations: $(grep -m1 '^recorded' "$OUT/demos.log" || echo 'none recorded'); the expert's drive that recorded them: $(awk '/^ +interventions/ { print $2 " interventions, autonomy " $4 " %" }' "$OUT/demos.log")."
   else
-    echo "Demonstrations: none (DEMOS=none)."
+    echo "- Demonstrations: none (DEMOS=none)."
   fi
-  echo "DDPG flags: ${DDPG_FLAGS:-the defaults}."
+  echo "- DDPG flags: ${DDPG_FLAGS:-the defaults}."
   # ddpg_eval.csv: episode,env_steps,wall_s,interventions,...; the first row is the start.
   awk -F, 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
     END {
-      if (!n) { print "DDPG evaluations (60 s, early replay): only the start"; exit }
+      if (!n) { print "- DDPG evaluations (60 s, early replay): only the start"; exit }
       for (i = 1; i <= n; i++) for (j = i + 1; j <= n; j++) if (v[j] < v[i]) { t = v[i]; v[i] = v[j]; v[j] = t }
       m = (n % 2) ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
-      printf "DDPG evaluations (60 s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", s, n, m, v[1], v[n]
+      printf "- DDPG evaluations (60 s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", s, n, m, v[1], v[n]
     }' "$OUT/ddpg/ddpg_eval.csv"
   # ddpg_episodes.csv: ...,critic_loss,mean_q (columns 8, 9); the first and the last tenth.
   awk -F, 'NR > 1 && $9 != "NaN" && $9 != "" { q[++n] = $9; l[n] = $8 }
     END {
-      if (n < 10) exit
+      if (n < 10) { printf "- Critic: %d episodes with updates, too few for a trend\n", n; exit }
       k = int(n / 10); for (i = 1; i <= k; i++) { a += q[i]; b += q[n - k + i]; c += l[i]; d += l[n - k + i] }
-      printf "Critic: mean Q %.1f over the first tenth of the episodes, %.1f over the last; critic loss %.1f, then %.1f\n", a / k, b / k, c / k, d / k
+      printf "- Critic: mean Q %.1f over the first tenth of the episodes with updates, %.1f over the last; critic loss %.1f, then %.1f\n", a / k, b / k, c / k, d / k
     }' "$OUT/ddpg/ddpg_episodes.csv"
+  echo
   echo "expert: the scripted expert (pure pursuit) at the recording's mean speed, $SPEED m/s: the replay is drivable where it has no interventions."
   echo "Traces: \`eval_<policy>_<part>.png\`; DDPG's curve: \`ddpg/ddpg_curve.png\`."
 } > "$OUT/report.md"
