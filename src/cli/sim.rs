@@ -465,9 +465,14 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         Some(dir) => {
             let now = super::unix_now();
             Some(
-                DemoRecorder::create(dir, args.record_xy.as_deref(), now, cfg.sim.seed)?
-                    .record_swerves(args.record_swerves)
-                    .mixing(cfg.control.mixing),
+                DemoRecorder::create(
+                    dir,
+                    args.record_xy.as_deref(),
+                    now,
+                    cfg.sim.seed,
+                    cfg.control.mixing,
+                )?
+                .record_swerves(args.record_swerves),
             )
         }
         None => None,

@@ -6,7 +6,8 @@
 //! Angle and throttle from the wheel commands as the daemon's recorder stores them
 //! (`crate::drive::recorder::angle_throttle`: `(left - right) / 2`, `(left + right) / 2`),
 //! or, for the simulated car, the throttle and angle its channels carry
-//! ([`Mixing::unmix`]).
+//! ([`Mixing::unmix`]). A car's tub has no `wheels/*`, as a DonkeyCar's has none: `poses`
+//! and the trainer then read it as a car's without being told.
 
 use std::path::Path;
 
@@ -33,12 +34,16 @@ pub struct DemoRecorder {
 impl DemoRecorder {
     /// `created_at` (Unix seconds) stamps the tub's session; `xy_dir` also writes JetBot's
     /// format (one file per step whose target point is in view, through the camera the step
-    /// saw through).
+    /// saw through). `mixing` is how the steps' wheel commands were mixed
+    /// (`control.mixing`): `user/angle` and `user/throttle` are read back through it, and
+    /// with [`Mixing::Car`] (the simulated car's channels carry throttle and angle, not
+    /// wheels) no `wheels/*` are recorded.
     pub fn create(
         tub_dir: &Path,
         xy_dir: Option<&Path>,
         created_at: f64,
         seed: u64,
+        mixing: Mixing,
     ) -> Result<Self, DatasetError> {
         if let Some(d) = xy_dir {
             std::fs::create_dir_all(d).map_err(|source| DatasetError::Io {
@@ -47,14 +52,22 @@ impl DemoRecorder {
             })?;
         }
         Ok(Self {
-            tub: TubWriter::create(tub_dir, &TubInputs::ALL, created_at)?,
+            tub: TubWriter::create(tub_dir, &Self::inputs(mixing), created_at)?,
             xy_dir: xy_dir.map(Path::to_path_buf),
             rng: ChaCha8Rng::seed_from_u64(seed),
             jpeg: Vec::new(),
             written: 0,
             record_swerves: false,
-            mixing: Mixing::Differential,
+            mixing,
         })
+    }
+
+    /// The keys a drive mixed this way records: everything, less the wheels for a car.
+    fn inputs(mixing: Mixing) -> TubInputs {
+        TubInputs {
+            wheels: mixing == Mixing::Differential,
+            ..TubInputs::ALL
+        }
     }
 
     /// Also records the expert's deliberate swerves, as a person who leaves the recorder
@@ -62,14 +75,6 @@ impl DemoRecorder {
     /// path with `sim.road = "path"`; not demonstrations to imitate).
     pub fn record_swerves(mut self, on: bool) -> Self {
         self.record_swerves = on;
-        self
-    }
-
-    /// How the steps' wheel commands were mixed (`control.mixing`): `user/angle` and
-    /// `user/throttle` are read back through it (the simulated car's channels carry
-    /// DonkeyCar's throttle and angle, not half of them).
-    pub fn mixing(mut self, mixing: Mixing) -> Self {
-        self.mixing = mixing;
         self
     }
 
@@ -95,7 +100,9 @@ impl DemoRecorder {
             DriveMode::Local
         };
         let mut rec = TubRecord::new(step.time.as_millis() as u64, angle, throttle, mode);
-        rec.wheels = Some((step.wheels.left, step.wheels.right));
+        if Self::inputs(self.mixing).wheels {
+            rec.wheels = Some((step.wheels.left, step.wheels.right));
+        }
         rec.pose = Some((step.pose.x, step.pose.y, step.pose.heading));
         rec.reward = Some(step.score.reward);
         if step.expert.is_none() {

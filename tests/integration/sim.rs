@@ -1145,6 +1145,55 @@ fn the_expert_drives_the_simulated_car_round_the_mat() {
 }
 
 #[test]
+fn a_recorded_car_drive_is_a_donkeycar_tub() {
+    // `sim --record` with the car: the tub has DonkeyCar's throttle and angle and no
+    // `wheels/*`, so `poses` and the trainer take it for a car's without `--vehicle car`.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("car.toml");
+    std::fs::write(
+        &cfg,
+        "[control]\nmixing = \"car\"\nspeed_gain = 0.25\n[sim]\nvehicle = \"car\"\n\
+         [sim.camera]\nwidth = 48\nheight = 48\n",
+    )
+    .unwrap();
+    let tub = dir.path().join("tub");
+    let out = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--expert", "--seconds", "6", "--record"])
+        .arg(&tub)
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let reader = jetpilot::dataset::tub::TubReader::open(&tub).unwrap();
+    assert!(
+        !reader.inputs().iter().any(|k| k.starts_with("wheels/")),
+        "{:?}",
+        reader.inputs()
+    );
+    let recs: Vec<_> = reader.records().collect();
+    assert!(recs.len() > 30, "{} records", recs.len());
+    assert!(recs.iter().all(|r| r.wheels.is_none() && r.pose.is_some()));
+    // The car's own channels: the expert's throttle is the speed gain times its speed,
+    // under 0.25, and it turns into the mat's first bend about 4.5 s in.
+    assert!(
+        recs.iter()
+            .all(|r| (0.0..=0.2501).contains(&r.user_throttle)),
+        "throttles {:?}",
+        recs.iter().map(|r| r.user_throttle).collect::<Vec<_>>()
+    );
+    let turn = recs.iter().map(|r| r.user_angle.abs()).fold(0.0, f32::max);
+    assert!(turn > 0.05, "the largest angle {turn}");
+    let vehicle =
+        jetpilot::sim::odometry::Vehicle::for_tub(&reader, Default::default(), Default::default());
+    assert!(matches!(vehicle, jetpilot::sim::odometry::Vehicle::Car(_)));
+}
+
+#[test]
 fn the_simulated_car_refuses_manual_driving_by_name() {
     // The gamepad, the web page's sticks and the recorder mix and store a JetBot's wheel
     // commands: with the car's mixing the daemon says so instead of driving it at half.
