@@ -22,10 +22,10 @@
 #    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
 #    is its held-out check).
 #    DDPG's demonstrations (DEMOS=expert, the default): the scripted expert drives the early
-#    replay for 60 s with a swerve every 3 s on average, and only its ways back are recorded,
-#    every third control step (OUT/demos, with the replay's rewards): recovery demonstrations of the training part,
-#    which a human's tub lacks (it has neither swerves nor rewards). DEMOS=none runs DDPG
-#    without. DDPG_FLAGS are `train ddpg`'s flags beyond these; the default is the recipe
+#    replay for 60 s with a swerve every 3 s on average, and only its ways back are
+#    recorded, every third control step (OUT/demos, with the replay's rewards): recovery
+#    demonstrations of the training part, which a human's tub lacks (it has neither swerves
+#    nor rewards). DEMOS=none runs DDPG without. DDPG_FLAGS are `train ddpg`'s flags beyond these; the default is the recipe
 #    chosen on the early replay (docs/results/real-replay.md, "DDPG on the replay"): policy
 #    improvement by search, the anchor to the imitation policy kept, half the episodes
 #    started before an earlier failure, OU noise on the steering. DDPG_FLAGS= (empty) runs
