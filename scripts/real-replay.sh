@@ -33,6 +33,8 @@
 # 5. OUT/report.md: the poses' lines, the view check, the score, the eval table and DDPG's
 #    evaluations during training (start, median, range) and its critic's mean Q.
 #
+# DDPG_EVAL_SECONDS (default 60): the length of DDPG's own evaluations during training
+# (every 10 episodes, on the early replay), which pick best.onnx.
 # BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
 # 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
 set -euo pipefail
@@ -49,6 +51,7 @@ cd "$(dirname "$0")/.."
 SPLIT=${SPLIT:-0.3}
 MINUTES=${MINUTES:-10}
 EVAL_SECONDS=${EVAL_SECONDS:-120}
+DDPG_EVAL_SECONDS=${DDPG_EVAL_SECONDS:-60}
 SEED=${SEED:-0}
 DEMOS=${DEMOS:-expert}
 DDPG_FLAGS=${DDPG_FLAGS---search-step 0.1 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
@@ -151,7 +154,7 @@ echo "real-replay: DDPG against the early replay, $MINUTES minutes"
 rm -rf "$OUT/ddpg"
 # shellcheck disable=SC2086 # DDPG_FLAGS is a list of flags
 (cd "$OUT/poses" && "$B" train ddpg --sim early.toml --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" \
-  ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds 60 --eval-every 10 \
+  ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
   --seed "$SEED" $DDPG_FLAGS > "$OUT/ddpg.log" 2>&1)
 evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
 evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
@@ -203,12 +206,12 @@ row() { # NAME
   fi
   echo "- DDPG flags: ${DDPG_FLAGS:-the defaults}."
   # ddpg_eval.csv: episode,env_steps,wall_s,interventions,...; the first row is the start.
-  awk -F, 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
+  awk -F, -v e="$DDPG_EVAL_SECONDS" 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
     END {
-      if (!n) { print "- DDPG evaluations (60 s, early replay): only the start"; exit }
+      if (!n) { print "- DDPG evaluations (" e " s, early replay): only the start"; exit }
       for (i = 1; i <= n; i++) for (j = i + 1; j <= n; j++) if (v[j] < v[i]) { t = v[i]; v[i] = v[j]; v[j] = t }
       m = (n % 2) ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
-      printf "- DDPG evaluations (60 s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", s, n, m, v[1], v[n]
+      printf "- DDPG evaluations (%s s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", e, s, n, m, v[1], v[n]
     }' "$OUT/ddpg/ddpg_eval.csv"
   # ddpg_episodes.csv: ...,critic_loss,mean_q (columns 8, 9); the first and the last tenth.
   awk -F, 'NR > 1 && $9 != "NaN" && $9 != "" { q[++n] = $9; l[n] = $8 }

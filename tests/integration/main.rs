@@ -25,6 +25,7 @@ mod probe;
 mod process_faults;
 mod providers;
 mod quantize;
+mod real_replay;
 mod score;
 mod sim;
 mod train_device;
