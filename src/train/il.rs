@@ -516,7 +516,7 @@ fn train_step(
     // output layer (a linear probe: about a forward pass's cost per step).
     let frozen = backbone_lr == 0.0;
     let pred = if frozen {
-        model.head().forward(model.features(x).detach()) // [B,N]
+        model.head().forward(model.head_input(x).detach()) // [B,N]
     } else {
         model.forward(x) // [B,N]
     };

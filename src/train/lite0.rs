@@ -8,6 +8,10 @@
 //!  -> fc 1280 -> N                                                          [B,N]
 //! ```
 //!
+//! Or, where `_fc.weight` is `[N, 1280*s*s]` for the input size's `s` x `s` final map (what
+//! `train probe --grid 2|3` writes), the head reads the whole map flattened channel by
+//! channel, as the ONNX graph's `Flatten` does: a probe on cells, then a fine-tune (LP-FT).
+//!
 //! Padding is TensorFlow's `SAME` for the input size the module is built for, so a module
 //! belongs to one input size (the contract's). BatchNorm epsilon is 1e-3; the momentum is
 //! a parameter of [`EfficientNetLite0::from_weights`] in burn's (= PyTorch's) convention.
@@ -20,11 +24,12 @@ use burn::tensor::activation::relu6;
 use burn::tensor::{Device, Tensor};
 
 use super::TrainError;
-use super::tensors::{Source, put_bn, put_conv, put_linear};
+use super::tensors::{Source, head_reads_whole_map, put_bn, put_conv, put_linear};
 use crate::policy::onnx::TensorMap;
 use crate::policy::onnx::lite0::{
-    BN_EPSILON, FEATURES, Lite0Weights, blocks, same_output, same_padding,
+    BN_EPSILON, FEATURES, Lite0Weights, blocks, final_map, same_output, same_padding,
 };
+use crate::policy::onnx::resnet::with_head_width;
 
 /// A convolution (no bias) and its BatchNorm.
 #[derive(Module, Debug)]
@@ -69,8 +74,11 @@ pub struct EfficientNetLite0 {
     pub blocks: Vec<MbConv>,
     pub head: ConvBn,
     pub avgpool: AdaptiveAvgPool2d,
-    /// Weight stored `[1280,N]` (burn's row layout), the port's `_fc.weight` transposed.
+    /// Weight stored `[1280,N]` (burn's row layout), the port's `_fc.weight` transposed;
+    /// `[1280*s*s,N]` when [`Self::whole_map`].
     pub fc: Linear,
+    /// The head reads the whole final map, not its average.
+    pub whole_map: bool,
 }
 
 impl EfficientNetLite0 {
@@ -85,9 +93,13 @@ impl EfficientNetLite0 {
         device: &Device,
     ) -> Result<Self, TrainError> {
         let n = weights.num_outputs()?;
+        let whole_map =
+            head_reads_whole_map(&weights.tensors, "_fc", FEATURES, final_map(input_size))?;
         let src = Source {
             tensors: &weights.tensors,
-            shapes: Lite0Weights::param_shapes(n).into_iter().collect(),
+            shapes: with_head_width(Lite0Weights::param_shapes(n), "_fc", &weights.tensors)
+                .into_iter()
+                .collect(),
             device,
             title: "EfficientNet-Lite0",
         };
@@ -150,6 +162,7 @@ impl EfficientNetLite0 {
             head: conv_bn("_conv_head", "_bn1", size, 1, 1)?,
             avgpool: AdaptiveAvgPool2dConfig::new([1, 1]).init(),
             fc: src.linear("_fc")?,
+            whole_map,
         })
     }
 
@@ -209,22 +222,38 @@ impl EfficientNetLite0 {
         n
     }
 
-    /// The pooled features: `[B,3,S,S] -> [B,1280]`.
-    pub fn features(&self, x: Tensor<4>) -> Tensor<2> {
+    /// The final feature map: `[B,3,S,S] -> [B,1280,s,s]`.
+    pub fn feature_map(&self, x: Tensor<4>) -> Tensor<4> {
         let mut x = relu6(self.stem.forward(x)); // [B,32,S/2,S/2]
         for block in &self.blocks {
             x = block.forward(x);
         } // [B,320,S/32,S/32]
-        let x = relu6(self.head.forward(x)); // [B,1280,S/32,S/32]
-        let x = self.avgpool.forward(x); // [B,1280,1,1]
+        relu6(self.head.forward(x)) // [B,1280,S/32,S/32]
+    }
+
+    /// The pooled features: `[B,3,S,S] -> [B,1280]`.
+    pub fn features(&self, x: Tensor<4>) -> Tensor<2> {
+        let x = self.avgpool.forward(self.feature_map(x)); // [B,1280,1,1]
         let [b, c, _, _] = x.dims();
         debug_assert_eq!(c, FEATURES);
         x.reshape([b, c]) // [B,1280]
     }
 
+    /// What `fc` reads: the pooled features `[B,1280]`, or with [`Self::whole_map`] the
+    /// whole map flattened channel by channel, `[B,1280*s*s]`.
+    pub fn head_input(&self, x: Tensor<4>) -> Tensor<2> {
+        if self.whole_map {
+            let m = self.feature_map(x);
+            let [b, c, h, w] = m.dims();
+            m.reshape([b, c * h * w])
+        } else {
+            self.features(x)
+        }
+    }
+
     /// `[B,3,S,S] -> [B,N]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        self.fc.forward(self.features(x)) // [B,N]
+        self.fc.forward(self.head_input(x)) // [B,N]
     }
 }
 
@@ -243,6 +272,45 @@ mod tests {
         assert_eq!(m.features(x.clone()).dims(), [2, FEATURES]);
         assert_eq!(m.forward(x).dims(), [2, 2]);
         assert_eq!(m.to_weights().unwrap(), w);
+    }
+
+    #[test]
+    fn a_whole_map_head_reads_the_map_channel_by_channel() {
+        // 64x64: a 2x2 final map. Output 0 weighs channel 1's top-right cell only, output 1
+        // the mean of channel 0's four cells: flattening is channel, then row, then column.
+        let device = Device::flex();
+        let mut w = Lite0Weights::random(2, 5);
+        let width = FEATURES * 4;
+        let mut weight = vec![0.0f32; 2 * width];
+        weight[4 + 1] = 1.0; // channel 1, row 0, column 1
+        for cell in 0..4 {
+            weight[width + cell] = 0.25; // channel 0
+        }
+        w.tensors
+            .insert("_fc.weight".into(), (vec![2, width as i64], weight));
+        w.tensors
+            .insert("_fc.bias".into(), (vec![2], vec![0.5, 0.0]));
+        let m = EfficientNetLite0::from_weights(&w, 64, 0.1, &device).unwrap();
+        assert!(m.whole_map);
+        let x = Tensor::<4>::ones([1, 3, 64, 64], &device);
+        let map = m
+            .feature_map(x.clone())
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap(); // [1,1280,2,2]
+        let pooled = m
+            .features(x.clone())
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let out = m.forward(x).into_data().try_into_vec::<f32>().unwrap();
+        assert!((out[0] - (map[4 + 1] + 0.5)).abs() < 1e-5, "{out:?}");
+        assert!((out[1] - pooled[0]).abs() < 1e-5, "{out:?} {}", pooled[0]);
+        assert_eq!(m.to_weights().unwrap(), w);
+        // The pooled default is not whole-map.
+        let pooled_head =
+            EfficientNetLite0::from_weights(&Lite0Weights::random(2, 5), 64, 0.1, &device);
+        assert!(!pooled_head.unwrap().whole_map);
     }
 
     #[test]

@@ -113,6 +113,41 @@ impl Source<'_> {
     }
 }
 
+/// Whether the output layer `{head}.weight` `[N,W]` reads the whole `s` x `s` final map of
+/// `features` channels (`W = features * s * s`, flattened channel by channel, as `train
+/// probe --grid 2|3` writes it) rather than its average (`W = features`). A missing tensor
+/// is left to the shape check; any other width is an error naming both it and the input
+/// size's two choices.
+pub fn head_reads_whole_map(
+    tensors: &TensorMap,
+    head: &str,
+    features: usize,
+    s: usize,
+) -> Result<bool, TrainError> {
+    let name = format!("{head}.weight");
+    let Some((dims, _)) = tensors.get(&name) else {
+        return Ok(false);
+    };
+    let (n, width) = match dims.as_slice() {
+        [n, w] => (*n, *w as usize),
+        _ => return Ok(false),
+    };
+    if width == features {
+        return Ok(false);
+    }
+    if s > 1 && width == features * s * s {
+        return Ok(true);
+    }
+    Err(TrainError::TensorShape {
+        name,
+        expected: format!(
+            "[{n},{features}] (pooled) or [{n},{}] (the whole {s}x{s} final map of this input size)",
+            features * s * s
+        ),
+        found: shape_to_string(dims),
+    })
+}
+
 pub fn put<const D: usize>(
     out: &mut TensorMap,
     name: &str,

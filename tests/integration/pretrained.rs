@@ -204,6 +204,55 @@ fn burn_lite0_matches_onnx_runtime_on_the_imagenet_weights() {
     }
 }
 
+#[cfg(feature = "train")]
+#[test]
+fn burn_lite0_with_a_whole_map_head_matches_onnx_runtime() {
+    // What `train probe --grid 2` writes and LP-FT starts from: the ImageNet backbone and a
+    // head on the whole final map (3x3 at 96, so 1280 * 9 wide), flattened channel by
+    // channel as the ONNX graph's Flatten does.
+    use burn::tensor::{Device, Tensor, TensorData};
+    use jetpilot::train::Net;
+    let imagenet = pytorch::read_state_dict(&imagenet_lite0(), Arch::EfficientNetLite0).unwrap();
+    let size = 96usize;
+    let width = 1280 * 3 * 3;
+    let weight: Vec<f32> = (0..2 * width)
+        .map(|i| ((i * 7919 % 1000) as f32 / 1000.0 - 0.5) * 0.02)
+        .collect();
+    let weights = imagenet.with_head(2, weight, vec![0.1, -0.2]);
+    let model = weights
+        .model(size as u32, &contract(size as u32), "t")
+        .unwrap();
+    let x = fixed_input(size);
+    let want = ort_output(&model, size, &x);
+    let device = Device::flex();
+    let net = Net::from_weights(&weights, size as u32, 0.1, &device).unwrap();
+    let input = Tensor::<4>::from_data(TensorData::new(x, [1, 3, size, size]), &device);
+    let got = net
+        .forward(input)
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        diff <= TOLERANCE,
+        "burn {got:?} against ONNX Runtime {want:?}"
+    );
+    assert_eq!(net.to_weights().unwrap(), weights);
+    // The same head on a 128 input (a 4x4 map) is refused, naming the tensor and both widths.
+    let err = Net::from_weights(&weights, 128, 0.1, &device)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(
+        err.contains("_fc.weight") && err.contains("[2,1280] (pooled) or [2,20480]"),
+        "{err}"
+    );
+}
+
 /// Every ResNet-18 tensor of `w` in torchvision's `state_dict` order, each BatchNorm with
 /// its int64 `num_batches_tracked`, behind `prefix`.
 fn torchvision_dict(w: &Resnet18Weights, prefix: &str) -> Vec<(String, Vec<i64>, Values)> {

@@ -246,3 +246,85 @@ fn a_grid_finer_than_the_map_is_refused_by_name() {
     assert!(!o.status.success());
     assert!(err.contains("--grid") && err.contains("2x2"), "{err}");
 }
+
+/// LP-FT: a probe on 2x2 cells of the ImageNet EfficientNet-Lite0 (a head on the whole
+/// final map) starts `train il`. With the learning rate at 0 and the backbone frozen the
+/// trainer hands back the probe's answers; with both on it fine-tunes through that head.
+#[cfg(feature = "train")]
+#[test]
+fn a_probe_on_cells_starts_a_fine_tune() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = xy_folder(dir.path());
+    install_imagenet();
+    let probe = dir.path().join("probe");
+    ok(
+        jetpilot(&[
+            "-q",
+            "train",
+            "probe",
+            "--data",
+            data.to_str().unwrap(),
+            "--init",
+            "imagenet",
+            "--input-size",
+            "64",
+            "--head",
+            "xy",
+            "--grid",
+            "2",
+            "--strength",
+            "1e-6",
+            "--mirror",
+            "off",
+            "-o",
+            probe.to_str().unwrap(),
+        ]),
+        "train probe",
+    );
+    let probe_model = probe.join("probe.onnx");
+    let probe_px = scored_px(&probe_model, &data, &dir.path().join("score-probe"));
+    let il = |name: &str, lr: &str, backbone_lr: &str| {
+        let out = dir.path().join(name);
+        ok(
+            jetpilot(&[
+                "-q",
+                "train",
+                "il",
+                "--data",
+                data.to_str().unwrap(),
+                "--init",
+                probe_model.to_str().unwrap(),
+                "--input-size",
+                "64",
+                "--epochs",
+                "1",
+                "--batch",
+                "8",
+                "--lr",
+                lr,
+                "--backbone-lr",
+                backbone_lr,
+                "--no-augment",
+                "--test-fraction",
+                "0.25",
+                "--out",
+                out.to_str().unwrap(),
+            ]),
+            "train il",
+        );
+        out.join("last.onnx")
+    };
+    let kept = il("kept", "0", "0");
+    let kept_px = scored_px(&kept, &data, &dir.path().join("score-kept"));
+    assert!(
+        (kept_px - probe_px).abs() < 0.05,
+        "the probe scored {probe_px} px, the trainer's copy of it {kept_px} px"
+    );
+    let tuned = il("tuned", "1e-3", "0.1");
+    let tuned_px = scored_px(&tuned, &data, &dir.path().join("score-tuned"));
+    assert!(tuned_px.is_finite(), "{tuned_px}");
+    assert!(
+        (tuned_px - probe_px).abs() > 1e-3,
+        "a fine-tune that changed nothing"
+    );
+}

@@ -111,10 +111,17 @@ impl Head {
                     expected: format!("{len} values"),
                 })?;
             if v.len() != len {
+                // The likely cause: a probe on cells (`train probe --grid 2|3`).
+                let hint = if v.len() > len && v.len() % len == 0 {
+                    ": a head on the whole final map; DDPG's actor reads the pooled \
+                     features (`train probe --grid 1`)"
+                } else {
+                    ""
+                };
                 return Err(TrainError::TensorShape {
                     name,
                     expected: format!("{len} values"),
-                    found: format!("{} values", v.len()),
+                    found: format!("{} values{hint}", v.len()),
                 });
             }
             Ok(v.clone())
@@ -175,5 +182,25 @@ impl Policy for FeatureActor<'_> {
     }
     fn describe(&self) -> String {
         "DDPG actor (ONNX Runtime backbone + linear head)".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::onnx::Arch;
+
+    #[test]
+    fn a_head_on_the_whole_map_is_refused_with_the_probe_flag_that_makes_a_pooled_one() {
+        let pooled = NetWeights::random(Arch::EfficientNetLite0, 2, 3);
+        let head = Head::from_weights(&pooled).unwrap();
+        assert_eq!(head.width(), 1280);
+        // A 2x2 map's head, as `train probe --grid 2` writes it at 64x64.
+        let wide = pooled.with_head(2, vec![0.0; 2 * 1280 * 4], vec![0.0; 2]);
+        let err = Head::from_weights(&wide).unwrap_err().to_string();
+        assert!(
+            err.contains("_fc.weight") && err.contains("10240 values") && err.contains("--grid 1"),
+            "{err}"
+        );
     }
 }
