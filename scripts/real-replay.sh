@@ -25,11 +25,12 @@
 #    replay for 60 s with a swerve every 3 s on average, and only its ways back are
 #    recorded, every third control step (OUT/demos, with the replay's rewards): recovery
 #    demonstrations of the training part, which a human's tub lacks (it has neither swerves
-#    nor rewards). DEMOS=none runs DDPG without. DDPG_FLAGS are `train ddpg`'s flags beyond these; the default is the recipe
-#    chosen on the early replay (docs/results/real-replay.md, "DDPG on the replay"): policy
-#    improvement by search, the anchor to the imitation policy kept, half the episodes
-#    started before an earlier failure, OU noise on the steering. DDPG_FLAGS= (empty) runs
-#    `train ddpg`'s own defaults.
+#    nor rewards). DEMOS=none runs DDPG without. DDPG_FLAGS are `train ddpg`'s flags
+#    beyond these; the default is the recipe chosen on the early replay
+#    (docs/results/real-replay.md, "DDPG on the replay"): policy improvement by search, the
+#    anchor to the imitation policy kept, half the episodes started before an earlier
+#    failure, OU noise on the steering. DDPG_FLAGS= (empty) runs `train ddpg`'s own
+#    defaults.
 # 5. OUT/report.md: the poses' lines, the view check, the score, the eval table and DDPG's
 #    evaluations during training (start, median, range) and its critic's mean Q.
 #
@@ -174,7 +175,7 @@ row() { # NAME
 {
   echo "# Real replay of $(basename "$TUB")"
   echo
-  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
+  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS DDPG_EVAL_SECONDS=$DDPG_EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
   echo
   echo "## Poses (\`poses/poses.png\`, \`poses/check-views.png\`)"
   echo

@@ -47,8 +47,8 @@ pub struct ProbeArgs {
     /// pooling; at most the map's side, 7 at 224). `auto`: 1, 2 and 3, the one with the
     /// lowest cross-validated error. A grid above 1 writes a head on the whole map (for
     /// `score`, `run`, and an EfficientNet-Lite0's for `train il --init` at the same
-    /// `--input-size`: a probe, then a fine-tune; `train ddpg --init` takes pooled heads
-    /// only).
+    /// `--input-size`: a probe, then a fine-tune; `train ddpg --init` takes 1x1 pooled
+    /// heads only).
     #[arg(long, default_value = "auto", value_name = "auto|GRID")]
     grid: GridArg,
     /// Fit on the frames' mirror images too (x or steering negated): `on`, `off`, or

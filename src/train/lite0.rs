@@ -93,8 +93,8 @@ impl EfficientNetLite0 {
         device: &Device,
     ) -> Result<Self, TrainError> {
         let n = weights.num_outputs()?;
-        let whole_map =
-            head_reads_whole_map(&weights.tensors, "_fc", FEATURES, final_map(input_size))?;
+        let side = final_map(input_size);
+        let whole_map = head_reads_whole_map(&weights.tensors, "_fc", FEATURES, side, input_size)?;
         let src = Source {
             tensors: &weights.tensors,
             shapes: with_head_width(Lite0Weights::param_shapes(n), "_fc", &weights.tensors)
@@ -166,8 +166,9 @@ impl EfficientNetLite0 {
         })
     }
 
-    /// Every tensor of [`Lite0Weights::param_shapes`] under the port's name, read back from
-    /// the device (`from_weights(to_weights(m))` reproduces `m`).
+    /// Every tensor of [`Lite0Weights::param_shapes`] under the port's name (`_fc.weight`
+    /// as wide as the head reads), read back from the device (`from_weights(to_weights(m))`
+    /// reproduces `m`).
     pub fn to_weights(&self) -> Result<Lite0Weights, TrainError> {
         let mut out = TensorMap::new();
         let pair = |out: &mut TensorMap, conv: &str, bn: &str, l: &ConvBn| {

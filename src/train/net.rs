@@ -83,14 +83,6 @@ impl Net {
         }
     }
 
-    /// `[B,3,S,S] -> [B,F]`, `F` = [`Arch::features`].
-    pub fn features(&self, x: Tensor<4>) -> Tensor<2> {
-        match self {
-            Net::Resnet18(n) => n.features(x),
-            Net::Lite0(n) => n.features(x),
-        }
-    }
-
     /// What the output layer reads: the pooled features, or an EfficientNet-Lite0's whole
     /// final map flattened (a head from `train probe --grid 2|3`).
     pub fn head_input(&self, x: Tensor<4>) -> Tensor<2> {

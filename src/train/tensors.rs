@@ -114,15 +114,16 @@ impl Source<'_> {
 }
 
 /// Whether the output layer `{head}.weight` `[N,W]` reads the whole `s` x `s` final map of
-/// `features` channels (`W = features * s * s`, flattened channel by channel, as `train
-/// probe --grid 2|3` writes it) rather than its average (`W = features`). A missing tensor
-/// is left to the shape check; any other width is an error naming both it and the input
-/// size's two choices.
+/// `features` channels that an `input` x `input` picture gives (`W = features * s * s`,
+/// flattened channel by channel, as `train probe --grid 2|3` writes it) rather than its
+/// average (`W = features`). A missing tensor is left to the shape check; any other width
+/// is an error naming both it and the input size's two choices.
 pub fn head_reads_whole_map(
     tensors: &TensorMap,
     head: &str,
     features: usize,
     s: usize,
+    input: usize,
 ) -> Result<bool, TrainError> {
     let name = format!("{head}.weight");
     let Some((dims, _)) = tensors.get(&name) else {
@@ -141,7 +142,9 @@ pub fn head_reads_whole_map(
     Err(TrainError::TensorShape {
         name,
         expected: format!(
-            "[{n},{features}] (pooled) or [{n},{}] (the whole {s}x{s} final map of this input size)",
+            "[{n},{features}] (pooled) or [{n},{}] (the whole {s}x{s} final map of a \
+             {input}x{input} input; a head on the whole map needs the input size it was made \
+             at: --input-size)",
             features * s * s
         ),
         found: shape_to_string(dims),

@@ -1,7 +1,9 @@
 //! `scripts/real-replay.sh` end to end on a DonkeyCar tub (issue 49 item 3): a simulated
 //! car's drive written as a DonkeyCar writes one (frames, `user/angle`, `user/throttle`,
 //! nothing else), then the script's every step with a tiny DDPG budget: poses, the two
-//! replays, imitation, the evaluations and the report.
+//! replays, imitation, the evaluations and the report. Needs the `train` feature, ONNX
+//! Runtime and python3 with pip (the script installs the ImageNet weights).
+#![cfg(feature = "train")]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -102,19 +102,23 @@ impl Head {
     /// The output layer of `weights` (`fc` for ResNet-18, `_fc` for Lite0: `[2,F]`, `[2]`).
     pub fn from_weights(weights: &NetWeights) -> Result<Self, TrainError> {
         let prefix = weights.arch().head();
+        let features = weights.arch().features();
         let get = |name: String, len: usize| -> Result<Vec<f32>, TrainError> {
-            let (_, v) = weights
-                .tensors()
-                .get(&name)
-                .ok_or_else(|| TrainError::MissingTensor {
-                    name: name.clone(),
-                    expected: format!("{len} values"),
-                })?;
+            let (dims, v) =
+                weights
+                    .tensors()
+                    .get(&name)
+                    .ok_or_else(|| TrainError::MissingTensor {
+                        name: name.clone(),
+                        expected: format!("{len} values"),
+                    })?;
             if v.len() != len {
-                // The likely cause: a probe on cells (`train probe --grid 2|3`).
-                let hint = if v.len() > len && v.len() % len == 0 {
+                // `[2, F*s*s]`: a head on the whole final map (`train probe --grid 2|3`).
+                let whole_map = matches!(dims.as_slice(),
+                    [2, w] if *w as usize > features && *w as usize % features == 0);
+                let hint = if whole_map {
                     ": a head on the whole final map; DDPG's actor reads the pooled \
-                     features (`train probe --grid 1`)"
+                     features (a pooled head, e.g. `train probe --grid 1`)"
                 } else {
                     ""
                 };
@@ -126,7 +130,7 @@ impl Head {
             }
             Ok(v.clone())
         };
-        let weight = get(format!("{prefix}.weight"), 2 * weights.arch().features())?;
+        let weight = get(format!("{prefix}.weight"), 2 * features)?;
         let b = get(format!("{prefix}.bias"), 2)?;
         Ok(Self {
             weight,
