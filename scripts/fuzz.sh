@@ -65,4 +65,6 @@ for t in "${TARGETS[@]}"; do
     status=1
   fi
 done
+# The tub and .pth targets' scratch folders (one per fuzzer process, remade each input).
+rm -rf "${TMPDIR:-/tmp}"/jetpilot-fuzz-tub-* "${TMPDIR:-/tmp}"/jetpilot-fuzz-pth-*
 exit $status
