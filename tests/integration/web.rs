@@ -777,6 +777,9 @@ async fn under_load_the_autopilot_keeps_its_cadence_and_a_silent_holder_is_still
     // refused) and keeps them with a heartbeat between the load's steps.
     let mut ws = rig.ws(None).await.unwrap();
     say(&mut ws, r#"{"type":"mode","mode":"auto"}"#).await;
+    // Taken before any flooder connects: on a busy machine a flooder's first message could
+    // otherwise reach the daemon first and hold the controls (seen once in CI).
+    rig.wait_status(10.0, |s| s.mode == "auto").await;
     let done = Arc::new(AtomicBool::new(false));
     let video_bytes = Arc::new(AtomicU64::new(0));
     let flood_sent = Arc::new(AtomicU64::new(0));
