@@ -172,32 +172,41 @@ fn model_import_writes_the_backbone_with_a_fresh_seeded_head() {
     assert!(y.iter().all(|v| v.is_finite()), "{y:?}");
 }
 
+/// `weights` at `size` through burn and through ONNX Runtime (our ONNX writer's model) on
+/// [`fixed_input`]: the largest difference between the outputs, and burn's network.
+#[cfg(feature = "train")]
+fn burn_against_onnx_runtime(weights: &NetWeights, size: usize) -> (f32, jetpilot::train::Net) {
+    use burn::tensor::{Device, Tensor, TensorData};
+    use jetpilot::train::Net;
+    let model = weights
+        .model(size as u32, &contract(size as u32), "t")
+        .unwrap();
+    let x = fixed_input(size);
+    let want = ort_output(&model, size, &x);
+    let device = Device::flex();
+    let net = Net::from_weights(weights, size as u32, 0.1, &device).unwrap();
+    let input = Tensor::<4>::from_data(TensorData::new(x, [1, 3, size, size]), &device);
+    let got = net
+        .forward(input)
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    assert_eq!(got.len(), want.len());
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    (diff, net)
+}
+
 #[cfg(feature = "train")]
 #[test]
 fn burn_lite0_matches_onnx_runtime_on_the_imagenet_weights() {
-    use burn::tensor::{Device, Tensor, TensorData};
-    use jetpilot::train::Net;
     let weights = pytorch::read_state_dict(&imagenet_lite0(), Arch::EfficientNetLite0).unwrap();
     // 100: the odd sizes inside (25, 13, 7) pad asymmetrically at stride 2 as well.
     for size in [96usize, 100] {
-        let model = weights
-            .model(size as u32, &contract(size as u32), "t")
-            .unwrap();
-        let x = fixed_input(size);
-        let want = ort_output(&model, size, &x);
-        let device = Device::flex();
-        let net = Net::from_weights(&weights, size as u32, 0.1, &device).unwrap();
-        let input = Tensor::<4>::from_data(TensorData::new(x, [1, 3, size, size]), &device);
-        let got = net
-            .forward(input)
-            .into_data()
-            .try_into_vec::<f32>()
-            .unwrap();
-        let diff = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let (diff, net) = burn_against_onnx_runtime(&weights, size);
         println!("{size}: burn vs ONNX Runtime over 1000 logits: max |diff| {diff:e}");
         assert!(diff <= TOLERANCE, "{size}: max |burn - ort| = {diff}");
         assert_eq!(net.to_weights().unwrap(), weights);
@@ -210,40 +219,19 @@ fn burn_lite0_with_a_whole_map_head_matches_onnx_runtime() {
     // What `train probe --grid 2` writes and LP-FT starts from: the ImageNet backbone and a
     // head on the whole final map (3x3 at 96, so 1280 * 9 wide), flattened channel by
     // channel as the ONNX graph's Flatten does.
-    use burn::tensor::{Device, Tensor, TensorData};
+    use burn::tensor::Device;
     use jetpilot::train::Net;
     let imagenet = pytorch::read_state_dict(&imagenet_lite0(), Arch::EfficientNetLite0).unwrap();
-    let size = 96usize;
     let width = 1280 * 3 * 3;
     let weight: Vec<f32> = (0..2 * width)
         .map(|i| ((i * 7919 % 1000) as f32 / 1000.0 - 0.5) * 0.02)
         .collect();
     let weights = imagenet.with_head(2, weight, vec![0.1, -0.2]);
-    let model = weights
-        .model(size as u32, &contract(size as u32), "t")
-        .unwrap();
-    let x = fixed_input(size);
-    let want = ort_output(&model, size, &x);
-    let device = Device::flex();
-    let net = Net::from_weights(&weights, size as u32, 0.1, &device).unwrap();
-    let input = Tensor::<4>::from_data(TensorData::new(x, [1, 3, size, size]), &device);
-    let got = net
-        .forward(input)
-        .into_data()
-        .try_into_vec::<f32>()
-        .unwrap();
-    let diff = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(
-        diff <= TOLERANCE,
-        "burn {got:?} against ONNX Runtime {want:?}"
-    );
+    let (diff, net) = burn_against_onnx_runtime(&weights, 96);
+    assert!(diff <= TOLERANCE, "max |burn - ort| = {diff}");
     assert_eq!(net.to_weights().unwrap(), weights);
     // The same head on a 128 input (a 4x4 map) is refused, naming the tensor and both widths.
-    let err = Net::from_weights(&weights, 128, 0.1, &device)
+    let err = Net::from_weights(&weights, 128, 0.1, &Device::flex())
         .err()
         .map(|e| e.to_string())
         .unwrap_or_default();
