@@ -10,8 +10,12 @@
 #    (poses.png), the view check (check-views.csv, .png) and replay.toml. A car's replay
 #    drives the calibrated car (sim.vehicle = "car").
 # 2. The recording is split by time: the earlier 1 - SPLIT (default SPLIT 0.3) is the
-#    training part, the latest SPLIT the held-out part. OUT/poses/early.toml and late.toml
-#    are replay.toml with `sim.recording_span` set to each: their own frames, their own road.
+#    training part, the latest SPLIT the held-out part. The held-out part's first SELECT
+#    (default 0.15 of the whole recording) is the selection part, where DDPG's evaluations
+#    run and pick best.onnx; the rest of it is the report part that nothing is chosen on.
+#    OUT/poses/early.toml, middle.toml and late.toml are replay.toml with
+#    `sim.recording_span` set to each: their own frames, their own road. SELECT=0: no
+#    middle part, DDPG picks best.onnx on the early replay (the script before 2026-12-06).
 # 3. Imitation: `train probe` (the frozen ImageNet EfficientNet-Lite0, its output layer fitted
 #    in closed form, 1x1 pooled so `train ddpg --init` takes it) on the training part's
 #    frames, speed_steering; `score` on the held-out frames.
@@ -19,8 +23,8 @@
 #    recording's mean speed (the bar: is the replay drivable?) and of the imitation policy;
 #    `train ddpg`
 #    (MINUTES, default 10) against the early replay from it; `eval` of DDPG's last.onnx and
-#    best.onnx on both (best is picked on the early replay's evaluations, so the late replay
-#    is its held-out check).
+#    best.onnx on every part (best is picked on the middle replay's evaluations, so the late
+#    replay is the held-out check of both).
 #    DDPG's demonstrations (DEMOS=expert, the default): the scripted expert drives the early
 #    replay for 60 s with a swerve every 3 s on average, and only its ways back are
 #    recorded, every third control step (OUT/demos, with the replay's rewards): recovery
@@ -35,7 +39,7 @@
 #    evaluations during training (start, median, range) and its critic's mean Q.
 #
 # DDPG_EVAL_SECONDS (default 60): the length of DDPG's own evaluations during training
-# (every 10 episodes, on the early replay), which pick best.onnx.
+# (every 10 episodes, on the middle replay), which pick best.onnx.
 # BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
 # 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
 set -euo pipefail
@@ -50,6 +54,7 @@ abs() { case "$1" in /*) echo "$1" ;; *) echo "$PWD/$1" ;; esac; }
 case "${BIN:-}" in */*) BIN=$(abs "$BIN") ;; ?*) BIN=$(command -v "$BIN") ;; esac
 cd "$(dirname "$0")/.."
 SPLIT=${SPLIT:-0.3}
+SELECT=${SELECT:-0.15}
 MINUTES=${MINUTES:-10}
 EVAL_SECONDS=${EVAL_SECONDS:-120}
 DDPG_EVAL_SECONDS=${DDPG_EVAL_SECONDS:-60}
@@ -73,10 +78,20 @@ case "$DEMOS" in expert | none) ;; *)
   exit 2
   ;;
 esac
-EARLY=$(awk -v s="$SPLIT" 'BEGIN { if (s <= 0 || s >= 1) exit 1; printf "%.4f", 1 - s }') || {
+EARLY=$(awk -v s="$SPLIT" 'BEGIN { if (!(s > 0 && s < 1)) exit 1; printf "%.4f", 1 - s }') || {
   echo "real-replay: SPLIT must lie between 0 and 1, got '$SPLIT'" >&2
   exit 2
 }
+LATE=$(awk -v s="$SPLIT" -v m="$SELECT" 'BEGIN { if (!(m >= 0 && m < s)) exit 1; printf "%.4f", 1 - s + m }') || {
+  echo "real-replay: SELECT must lie between 0 and SPLIT ($SPLIT), below it, got '$SELECT'" >&2
+  exit 2
+}
+PARTS=(early middle late)
+PICK=middle
+if [ "$LATE" = "$EARLY" ]; then
+  PARTS=(early late)
+  PICK=early
+fi
 if [ -z "${CONFIG:-}" ]; then
   if grep -q 'wheels/left' "$TUB/manifest.json"; then CONFIG=""; else CONFIG=config/donkeycar.toml; fi
 fi
@@ -109,7 +124,8 @@ span() {
   }
 }
 span 0.0 "$EARLY" early.toml
-span "$EARLY" 1.0 late.toml
+if [ "$PICK" = middle ]; then span "$EARLY" "$LATE" middle.toml; fi
+span "$LATE" 1.0 late.toml
 
 echo "real-replay: imitation on the earliest $EARLY of the frames"
 rm -rf "$OUT/il"
@@ -118,10 +134,10 @@ rm -rf "$OUT/il"
 "$B" -q score --model "$OUT/il/probe.onnx" --data "$OUT/poses" --config "$OUT/poses/replay.toml" \
   --split-by-time "$SPLIT" --out "$OUT/score" > "$OUT/score.txt"
 
-evaluate() { # NAME MODEL|--expert: eval on both replays
+evaluate() { # NAME MODEL|--expert SUFFIX: eval on every part's replay
   local pilot=(--model "$2")
   [ "$2" = --expert ] && pilot=(--expert)
-  for part in early late; do
+  for part in "${PARTS[@]}"; do
     (cd "$OUT/poses" && "$B" eval --config "$part$3.toml" "${pilot[@]}" --seconds "$EVAL_SECONDS" \
       --json "$OUT/eval_$1_$part.json" --png "$OUT/eval_$1_$part.png" > "$OUT/eval_$1_$part.txt" 2>&1)
   done
@@ -130,7 +146,7 @@ evaluate() { # NAME MODEL|--expert: eval on both replays
 # speed, in replays that differ from the two above in [sim.expert] only.
 SPEED=$(awk -F, 'NR > 1 { if (n) d += sqrt(($3 - x) ^ 2 + ($4 - y) ^ 2); x = $3; y = $4; t = $2; n++ }
   END { if (t > 0) printf "%.3f", d / t; else print "0.2" }' "$OUT/poses/poses.csv")
-for part in early late; do
+for part in "${PARTS[@]}"; do
   sed -e "/^\[sim.expert\]/,/^\[/ s/^speed_mps = .*/speed_mps = $SPEED/" \
     -e "/^\[sim.expert\]/,/^\[/ s/^max_lateral_accel = .*/max_lateral_accel = 100.0/" \
     "$OUT/poses/$part.toml" > "$OUT/poses/${part}_expert.toml"
@@ -151,11 +167,11 @@ if [ "$DEMOS" = expert ]; then
     --record-every 3 --record "$OUT/demos" > "$OUT/demos.log" 2>&1)
   DEMO_ARGS=(--demos "$OUT/demos")
 fi
-echo "real-replay: DDPG against the early replay, $MINUTES minutes"
+echo "real-replay: DDPG against the early replay, $MINUTES minutes, best.onnx picked on the $PICK replay"
 rm -rf "$OUT/ddpg"
 # shellcheck disable=SC2086 # DDPG_FLAGS is a list of flags
-(cd "$OUT/poses" && "$B" train ddpg --sim early.toml --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" \
-  ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
+(cd "$OUT/poses" && "$B" train ddpg --sim early.toml --select-sim "$PICK.toml" --init "$OUT/il/probe.onnx" \
+  --out "$OUT/ddpg" ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
   --seed "$SEED" $DDPG_FLAGS > "$OUT/ddpg.log" 2>&1)
 evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
 evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
@@ -166,7 +182,7 @@ field() { # FILE KEY: a number from eval's JSON
 }
 row() { # NAME
   local cells=""
-  for part in early late; do
+  for part in "${PARTS[@]}"; do
     local j="$OUT/eval_$1_$part.json"
     cells="$cells | $(field "$j" interventions) | $(printf '%.0f' "$(field "$j" autonomy_percent)") % | $(printf '%.1f' "$(field "$j" distance_m)") m"
   done
@@ -175,7 +191,7 @@ row() { # NAME
 {
   echo "# Real replay of $(basename "$TUB")"
   echo
-  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS DDPG_EVAL_SECONDS=$DDPG_EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
+  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT SELECT=$SELECT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS DDPG_EVAL_SECONDS=$DDPG_EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
   echo
   echo "## Poses (\`poses/poses.png\`, \`poses/check-views.png\`)"
   echo
@@ -189,10 +205,17 @@ row() { # NAME
   cat "$OUT/score.txt"
   echo '```'
   echo
-  echo "## Closed loop: $EVAL_SECONDS s on each replay (early: the training part; late: held out)"
-  echo
-  echo "| policy | early: interventions | autonomy | distance | late: interventions | autonomy | distance |"
-  echo "|---|---|---|---|---|---|---|"
+  if [ "$PICK" = middle ]; then
+    echo "## Closed loop: $EVAL_SECONDS s on each replay (early: the training part, frames 0-$EARLY; middle: where best.onnx is picked, $EARLY-$LATE; late: held out from everything, $LATE-1)"
+    echo
+    echo "| policy | early: interventions | autonomy | distance | middle: interventions | autonomy | distance | late: interventions | autonomy | distance |"
+    echo "|---|---|---|---|---|---|---|---|---|---|"
+  else
+    echo "## Closed loop: $EVAL_SECONDS s on each replay (early: the training part, where best.onnx is picked; late: held out)"
+    echo
+    echo "| policy | early: interventions | autonomy | distance | late: interventions | autonomy | distance |"
+    echo "|---|---|---|---|---|---|---|"
+  fi
   row expert
   row il
   row ddpg_last
@@ -207,12 +230,12 @@ row() { # NAME
   fi
   echo "- DDPG flags: ${DDPG_FLAGS:-the defaults}."
   # ddpg_eval.csv: episode,env_steps,wall_s,interventions,...; the first row is the start.
-  awk -F, -v e="$DDPG_EVAL_SECONDS" 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
+  awk -F, -v e="$DDPG_EVAL_SECONDS" -v w="$PICK" 'NR == 2 { s = $4 } NR > 2 { v[++n] = $4 }
     END {
-      if (!n) { print "- DDPG evaluations (" e " s, early replay): only the start"; exit }
+      if (!n) { print "- DDPG evaluations (" e " s, " w " replay): only the start"; exit }
       for (i = 1; i <= n; i++) for (j = i + 1; j <= n; j++) if (v[j] < v[i]) { t = v[i]; v[i] = v[j]; v[j] = t }
       m = (n % 2) ? v[(n + 1) / 2] : (v[n / 2] + v[n / 2 + 1]) / 2
-      printf "- DDPG evaluations (%s s, early replay): start %d interventions; the %d later ones: median %s, %d to %d\n", e, s, n, m, v[1], v[n]
+      printf "- DDPG evaluations (%s s, %s replay): start %d interventions; the %d later ones: median %s, %d to %d\n", e, w, s, n, m, v[1], v[n]
     }' "$OUT/ddpg/ddpg_eval.csv"
   # ddpg_episodes.csv: ...,critic_loss,mean_q (columns 8, 9); the first and the last tenth.
   awk -F, 'NR > 1 && $9 != "NaN" && $9 != "" { q[++n] = $9; l[n] = $8 }

@@ -48,6 +48,12 @@ pub struct DdpgArgs {
     /// Simulated seconds per evaluation (the paper: 600).
     #[arg(long, default_value_t = 600.0)]
     eval_seconds: f64,
+    /// Run the evaluations, and so choose best.onnx, in this simulator config's world instead
+    /// of --sim's: a world held out from training (scripts/real-replay.sh passes a middle
+    /// part of the recording). Taken as written: --track and the other world flags change
+    /// the training world only. Its `[model]` and `[control]` should match --sim's.
+    #[arg(long, value_name = "FILE")]
+    select_sim: Option<PathBuf>,
     /// Stop as soon as an evaluation has no intervention.
     #[arg(long)]
     stop_at_full_autonomy: bool,
@@ -129,6 +135,9 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     let mut cfg = super::train::config(Some(&args.sim))?;
     args.road.apply(&mut cfg);
     let mut opts = DdpgOptions::new(args.out.clone(), cfg);
+    if let Some(path) = &args.select_sim {
+        opts.select_cfg = Some(super::train::config(Some(path))?);
+    }
     opts.input_size = args.input_size;
     opts.init = args.init;
     opts.demos = args.demos;
@@ -248,8 +257,12 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
         report.wall_s
     );
     if let Some(b) = &report.best {
+        let world = match &args.select_sim {
+            Some(p) => format!(" in {}", p.display()),
+            None => String::new(),
+        };
         println!(
-            "best: episode {} -> {} interventions in {:.0} s, autonomy {:.1}%, {} rewards, {:.2} laps -> {}",
+            "best{world}: episode {} -> {} interventions in {:.0} s, autonomy {:.1}%, {} rewards, {:.2} laps -> {}",
             b.episode,
             b.outcome.interventions,
             b.outcome.seconds,

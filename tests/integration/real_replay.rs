@@ -1,7 +1,7 @@
 //! `scripts/real-replay.sh` end to end on a DonkeyCar tub (issue 49 item 3): a simulated
 //! car's drive written as a DonkeyCar writes one (frames, `user/angle`, `user/throttle`,
-//! nothing else), then the script's every step with a tiny DDPG budget: poses, the two
-//! replays, imitation, the evaluations and the report. Needs the `train` feature, ONNX
+//! nothing else), then the script's every step with a tiny DDPG budget: poses, the three
+//! replays (training, selection, report), imitation, the evaluations and the report. Needs the `train` feature, ONNX
 //! Runtime and python3 with pip (the script installs the ImageNet weights).
 #![cfg(feature = "train")]
 
@@ -88,15 +88,19 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     );
     assert!(o.status.success(), "{log}");
 
-    // The car was found from the tub's fields, with the wide lens, and the two replays
+    // The car was found from the tub's fields, with the wide lens, and the three replays
     // split the recording by time.
     let poses_log = std::fs::read_to_string(out.join("poses.log")).unwrap();
     assert!(poses_log.contains("car-like"), "{poses_log}");
-    let early = std::fs::read_to_string(out.join("poses/early.toml")).unwrap();
-    let late = std::fs::read_to_string(out.join("poses/late.toml")).unwrap();
+    let part = |name: &str| std::fs::read_to_string(out.join(format!("poses/{name}.toml"))).unwrap();
+    let (early, middle, late) = (part("early"), part("middle"), part("late"));
     assert!(early.contains("recording_span = [0.0, 0.7000]"), "{early}");
-    assert!(late.contains("recording_span = [0.7000, 1.0]"), "{late}");
+    assert!(middle.contains("recording_span = [0.7000, 0.8500]"), "{middle}");
+    assert!(late.contains("recording_span = [0.8500, 1.0]"), "{late}");
     assert!(early.contains("vehicle = \"car\""), "{early}");
+    // DDPG trained on the early replay and chose best.onnx on the middle one.
+    let ddpg_log = std::fs::read_to_string(out.join("ddpg.log")).unwrap();
+    assert!(ddpg_log.contains("best in middle.toml: "), "{ddpg_log}");
     for f in [
         "poses/poses.png",
         "poses/check-views.png",
@@ -106,6 +110,7 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
         "eval_expert_late.png",
         "eval_il_late.png",
         "eval_ddpg_last_early.png",
+        "eval_ddpg_best_middle.png",
     ] {
         assert!(out.join(f).is_file(), "{f} missing; {log}");
     }
@@ -114,7 +119,7 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     assert!(demos.len() > 10, "{} demonstrations", demos.len());
     assert!(demos.records().all(|r| r.wheels.is_none()));
 
-    // The report: every policy's row on both replays, with numbers in each cell.
+    // The report: every policy's row on the three replays, with numbers in each cell.
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for policy in ["expert", "il", "ddpg_last", "ddpg_best"] {
         let row = report
@@ -122,21 +127,21 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
             .find(|l| l.starts_with(&format!("| {policy} |")))
             .unwrap_or_else(|| panic!("no row for {policy}: {report}"));
         let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert_eq!(cells.len(), 9, "{row}");
-        let interventions = [cells[2], cells[5]];
+        assert_eq!(cells.len(), 12, "{row}");
+        let interventions = [cells[2], cells[5], cells[8]];
         assert!(
             interventions.iter().all(|c| c.parse::<u32>().is_ok()),
             "{row}"
         );
         assert!(
-            cells[4].ends_with(" m") && cells[7].ends_with(" m"),
+            [cells[4], cells[7], cells[10]].iter().all(|c| c.ends_with(" m")),
             "{row}"
         );
     }
     assert!(report.contains("\nDDPG: "), "{report}");
     assert!(report.contains("- Demonstrations: recorded "), "{report}");
     assert!(
-        report.contains("- DDPG evaluations (3 s, early replay): start "),
+        report.contains("- DDPG evaluations (3 s, middle replay): start "),
         "{report}"
     );
 

@@ -329,6 +329,94 @@ fn ddpg_fine_tunes_from_the_imitation_policy_and_its_eval_matches_jetpilot_eval(
 }
 
 #[test]
+fn ddpg_evaluates_and_picks_best_onnx_in_the_selection_world() {
+    // `--select-sim` moves the evaluations (and so the choice of best.onnx) to another
+    // world: here the S-bends track, whose length differs from the mat's, so the same
+    // drive covers another share of a lap. The first evaluation is the unchanged --init
+    // policy (the warm-up updates only the critic): it must be `jetpilot eval` in the
+    // selection world, not in the training one.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = sim_config(dir.path());
+    let tub = demos(dir.path(), &cfg, "2");
+    let il_out = dir.path().join("il");
+    ok(&il(&cfg, &tub, &il_out, &["--epochs", "1"]));
+    let init = il_out.join("best.onnx");
+    let select = dir.path().join("select.toml");
+    let track = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/tracks/s_bends.toml");
+    std::fs::write(
+        &select,
+        format!(
+            "[control]\nspeed_gain = 0.5\nsteering_gain = 0.5\nsteering_kd = 0.1\n\
+             [model]\ninput_size = 32\noutput = \"speed_steering\"\n\
+             [sim]\ntrack = {:?}\n[sim.camera]\nwidth = 32\nheight = 32\n",
+            track.display().to_string()
+        ),
+    )
+    .unwrap();
+
+    let out = dir.path().join("ddpg");
+    let args = [
+        "train",
+        "ddpg",
+        "--episodes",
+        "1",
+        "--episode-steps",
+        "20",
+        "--eval-seconds",
+        "4",
+        "--warmup-updates",
+        "5",
+        "--batch",
+        "16",
+        "--seed",
+        "1",
+        "--threads",
+        "1",
+    ];
+    let paths: [&Path; 10] = [
+        Path::new("--sim"),
+        &cfg,
+        Path::new("--select-sim"),
+        &select,
+        Path::new("--init"),
+        &init,
+        Path::new("--demos"),
+        &tub,
+        Path::new("--out"),
+        &out,
+    ];
+    ok(&jetpilot(&args, &paths));
+    let first: Vec<f64> = csv_rows(&out.join("ddpg_eval.csv"))[0]
+        .split(',')
+        .map(|x| x.parse().unwrap())
+        .collect();
+    assert_eq!(first[0], 0.0, "the first evaluation is at episode 0: {first:?}");
+    let laps = |world: &Path, name: &str| -> f64 {
+        let json = dir.path().join(name);
+        ok(&jetpilot(
+            &["eval", "--seconds", "4", "--config"],
+            &[world, Path::new("--model"), &init, Path::new("--json"), &json],
+        ));
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        v["laps"].as_f64().unwrap_or_else(|| panic!("no laps in {v}"))
+    };
+    let (in_select, in_training) = (laps(&select, "select.json"), laps(&cfg, "train.json"));
+    // Float rounding between the trainer's head and the exported graph (see the test
+    // above) moves a 4 s drive by far less than 5 %.
+    let near = |a: f64, b: f64| (a - b).abs() <= 0.05 * b.abs() + 1e-3;
+    assert!(
+        !near(in_select, in_training),
+        "the two worlds must tell apart: {in_select} vs {in_training} laps"
+    );
+    assert!(
+        near(first[7], in_select),
+        "evaluated in the selection world: {} laps, eval there {in_select}, in training {in_training}",
+        first[7]
+    );
+}
+
+#[test]
 fn ddpg_with_trainable_backbones_trains_the_exported_trunk() {
     // From scratch (the random ResNet-18 of --seed) with the demonstrations: a few updates
     // with --train-backbone must change the exported convolutions but not the batch-norm

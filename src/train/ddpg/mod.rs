@@ -11,8 +11,9 @@
 //!     one episode: frame -> frozen backbone -> actor + exploration noise -> Env::step,
 //!                  n-step transitions into the replay; leaving the road ends it
 //!     updates between episodes: updates_per_step x the episode's steps
-//!     every `eval_every` episodes: evaluate; a higher autonomy (then more rewards)
-//!     replaces best.onnx, unless it earns under half the start's rewards (it stopped)
+//!     every `eval_every` episodes: evaluate (on `select_cfg`'s world where given); a
+//!     higher autonomy (then more rewards) replaces best.onnx, unless it earns under half
+//!     the start's rewards (it stopped)
 //! ```
 //!
 //! The backbone is frozen by default (the CPU choice): features are computed once per frame
@@ -58,6 +59,10 @@ pub struct DdpgOptions {
     pub out: PathBuf,
     /// The simulator config (`[sim]`, `[control]` gains, `[model]` contract defaults).
     pub cfg: Config,
+    /// Where the evaluations run, and so where `best.onnx` is chosen (default: `cfg`): a
+    /// world held out from training, e.g. a middle part of a recording, so that the pick is
+    /// not a selection among noisy evaluations of the world the actor fits.
+    pub select_cfg: Option<Config>,
     /// The network's input size when starting from scratch (an `--init` model keeps its own).
     pub input_size: u32,
     pub init: Option<PathBuf>,
@@ -96,6 +101,7 @@ impl DdpgOptions {
             out,
             input_size: 96,
             cfg,
+            select_cfg: None,
             init: None,
             demos: Vec::new(),
             seed: 0,
@@ -349,7 +355,8 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
         actor: &mut Acting,
     ) -> Result<bool, TrainError> {
         let mut policy = FeatureActor::new(&mut actor.backbone, &actor.head, self.contract);
-        let outcome = evaluate(&self.opts.cfg, &mut policy, self.opts.eval_seconds)?;
+        let world = self.opts.select_cfg.as_ref().unwrap_or(&self.opts.cfg);
+        let outcome = evaluate(world, &mut policy, self.opts.eval_seconds)?;
         let point = EvalPoint {
             episode,
             env_steps,
