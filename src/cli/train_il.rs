@@ -50,7 +50,8 @@ pub struct IlArgs {
     /// included, and trains the output layer alone (a linear probe, several times faster).
     #[arg(long, default_value_t = 1.0, value_name = "SHARE")]
     backbone_lr: f64,
-    /// Network input size (default: the config's `model.input_size`).
+    /// Network input size (default: an ONNX --init's own, as a probe on cells needs;
+    /// otherwise the config's `model.input_size`).
     #[arg(long, value_parser = clap::value_parser!(u32).range(32..=1024))]
     input_size: Option<u32>,
     /// What the outputs mean (default: the config's `model.output`).
@@ -118,8 +119,17 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
     let mut contract: ModelContract = cfg.model.fallback_contract();
     let start = super::train_init::resolve(args.init.as_deref(), args.arch.map(Into::into))?;
     super::train_init::adopt_normalisation(&start, &mut contract);
-    if let Some(s) = args.input_size {
-        contract.input_size = s;
+    match (args.input_size, &start.contract) {
+        (Some(s), _) => contract.input_size = s,
+        (None, Some(own)) if own.input_size != contract.input_size => {
+            tracing::info!(
+                "input size {} from the --init model (the config says {}; --input-size overrides)",
+                own.input_size,
+                contract.input_size
+            );
+            contract.input_size = own.input_size;
+        }
+        _ => {}
     }
     if let Some(h) = args.head {
         contract.output = h.into();

@@ -296,8 +296,7 @@ fn a_probe_on_cells_starts_a_fine_tune() {
                 data.to_str().unwrap(),
                 "--init",
                 probe_model.to_str().unwrap(),
-                "--input-size",
-                "64",
+                // No --input-size: the probe's own 64, not the default config's 224.
                 "--epochs",
                 "1",
                 "--batch",
