@@ -15,11 +15,12 @@
 #    run and pick best.onnx; the rest of it is the report part that nothing is chosen on.
 #    OUT/poses/early.toml, middle.toml and late.toml are replay.toml with
 #    `sim.recording_span` set to each: their own frames, their own road. SELECT=0: no
-#    middle part, DDPG picks best.onnx on the early replay (the script before 2026-12-06).
+#    middle part, DDPG picks best.onnx on the early replay (the two-part split of the
+#    script before commit de3f0cc).
 # 3. Imitation: `train probe` (the frozen ImageNet EfficientNet-Lite0, its output layer fitted
 #    in closed form, 1x1 pooled so `train ddpg --init` takes it) on the training part's
 #    frames, speed_steering; `score` on the held-out frames.
-# 4. `eval` (EVAL_SECONDS, default 120) on both replays of the scripted expert at the
+# 4. `eval` (EVAL_SECONDS, default 120) on every part's replay of the scripted expert at the
 #    recording's mean speed (the bar: is the replay drivable?) and of the imitation policy;
 #    `train ddpg`
 #    (MINUTES, default 10) against the early replay from it; `eval` of DDPG's last.onnx and
@@ -39,7 +40,8 @@
 #    evaluations during training (start, median, range) and its critic's mean Q.
 #
 # DDPG_EVAL_SECONDS (default 60): the length of DDPG's own evaluations during training
-# (every 10 episodes, on the middle replay), which pick best.onnx.
+# (every 10 episodes, on the middle replay; the early one with SELECT=0), which pick
+# best.onnx.
 # BIN skips the build (it needs the `train` feature). SEED (default 0) seeds DDPG. About
 # 15 minutes on 2 cores with the defaults. The real frames stay under OUT: never commit it.
 set -euo pipefail
@@ -83,14 +85,16 @@ EARLY=$(awk -v s="$SPLIT" 'BEGIN { if (!(s > 0 && s < 1)) exit 1; printf "%.4f",
   exit 2
 }
 LATE=$(awk -v s="$SPLIT" -v m="$SELECT" 'BEGIN { if (!(m >= 0 && m < s)) exit 1; printf "%.4f", 1 - s + m }') || {
-  echo "real-replay: SELECT must lie between 0 and SPLIT ($SPLIT), below it, got '$SELECT'" >&2
+  echo "real-replay: SELECT must be 0 or more and below SPLIT ($SPLIT), got '$SELECT'" >&2
   exit 2
 }
 PARTS=(early middle late)
 PICK=middle
+SELECT_ARGS=(--select-sim middle.toml)
 if [ "$LATE" = "$EARLY" ]; then
   PARTS=(early late)
   PICK=early
+  SELECT_ARGS=()
 fi
 if [ -z "${CONFIG:-}" ]; then
   if grep -q 'wheels/left' "$TUB/manifest.json"; then CONFIG=""; else CONFIG=config/donkeycar.toml; fi
@@ -114,7 +118,7 @@ echo "real-replay: poses of $TUB"
 "$B" poses --tub "$TUB" ${CFG[@]+"${CFG[@]}"} --out "$OUT/poses" --check-views --turn-from-loops \
   > "$OUT/poses.log" 2>&1
 
-# The two replays: replay.toml with the span of each part (the serialiser writes the array
+# The replays: replay.toml with the span of each part (the serialiser writes the array
 # over several lines).
 span() {
   sed "/^recording_span = \[/,/^\]/c\\recording_span = [$1, $2]" "$OUT/poses/replay.toml" > "$OUT/poses/$3"
@@ -143,7 +147,7 @@ evaluate() { # NAME MODEL|--expert SUFFIX: eval on every part's replay
   done
 }
 # The bar: the scripted expert (pure pursuit, lookahead 0.22 m) at the recording's mean
-# speed, in replays that differ from the two above in [sim.expert] only.
+# speed, in replays that differ from the ones above in [sim.expert] only.
 SPEED=$(awk -F, 'NR > 1 { if (n) d += sqrt(($3 - x) ^ 2 + ($4 - y) ^ 2); x = $3; y = $4; t = $2; n++ }
   END { if (t > 0) printf "%.3f", d / t; else print "0.2" }' "$OUT/poses/poses.csv")
 for part in "${PARTS[@]}"; do
@@ -170,8 +174,8 @@ fi
 echo "real-replay: DDPG against the early replay, $MINUTES minutes, best.onnx picked on the $PICK replay"
 rm -rf "$OUT/ddpg"
 # shellcheck disable=SC2086 # DDPG_FLAGS is a list of flags
-(cd "$OUT/poses" && "$B" train ddpg --sim early.toml --select-sim "$PICK.toml" --init "$OUT/il/probe.onnx" \
-  --out "$OUT/ddpg" ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
+(cd "$OUT/poses" && "$B" train ddpg --sim early.toml ${SELECT_ARGS[@]+"${SELECT_ARGS[@]}"} \
+  --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
   --seed "$SEED" $DDPG_FLAGS > "$OUT/ddpg.log" 2>&1)
 evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
 evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
@@ -206,7 +210,7 @@ row() { # NAME
   echo '```'
   echo
   if [ "$PICK" = middle ]; then
-    echo "## Closed loop: $EVAL_SECONDS s on each replay (early: the training part, frames 0-$EARLY; middle: where best.onnx is picked, $EARLY-$LATE; late: held out from everything, $LATE-1)"
+    echo "## Closed loop: $EVAL_SECONDS s on each replay (shares of the recording in time; early, 0-$EARLY: the training part; middle, $EARLY-$LATE: where best.onnx is picked; late, $LATE-1: held out from everything)"
     echo
     echo "| policy | early: interventions | autonomy | distance | middle: interventions | autonomy | distance | late: interventions | autonomy | distance |"
     echo "|---|---|---|---|---|---|---|---|---|---|"

@@ -136,7 +136,16 @@ pub fn main(args: DdpgArgs) -> anyhow::Result<ExitCode> {
     args.road.apply(&mut cfg);
     let mut opts = DdpgOptions::new(args.out.clone(), cfg);
     if let Some(path) = &args.select_sim {
-        opts.select_cfg = Some(super::train::config(Some(path))?);
+        let select = super::train::config(Some(path))?;
+        let (a, b) = (&opts.cfg, &select);
+        if a.control.gains() != b.control.gains() || a.sim.control_hz != b.sim.control_hz {
+            tracing::warn!(
+                "--select-sim {}: its steering gains or sim.control_hz differ from --sim's, so \
+                 best.onnx is chosen for another controller than the one it trains with",
+                path.display()
+            );
+        }
+        opts.select_cfg = Some(select);
     }
     opts.input_size = args.input_size;
     opts.init = args.init;

@@ -92,10 +92,14 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     // split the recording by time.
     let poses_log = std::fs::read_to_string(out.join("poses.log")).unwrap();
     assert!(poses_log.contains("car-like"), "{poses_log}");
-    let part = |name: &str| std::fs::read_to_string(out.join(format!("poses/{name}.toml"))).unwrap();
+    let part =
+        |name: &str| std::fs::read_to_string(out.join(format!("poses/{name}.toml"))).unwrap();
     let (early, middle, late) = (part("early"), part("middle"), part("late"));
     assert!(early.contains("recording_span = [0.0, 0.7000]"), "{early}");
-    assert!(middle.contains("recording_span = [0.7000, 0.8500]"), "{middle}");
+    assert!(
+        middle.contains("recording_span = [0.7000, 0.8500]"),
+        "{middle}"
+    );
     assert!(late.contains("recording_span = [0.8500, 1.0]"), "{late}");
     assert!(early.contains("vehicle = \"car\""), "{early}");
     // DDPG trained on the early replay and chose best.onnx on the middle one.
@@ -134,7 +138,9 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
             "{row}"
         );
         assert!(
-            [cells[4], cells[7], cells[10]].iter().all(|c| c.ends_with(" m")),
+            [cells[4], cells[7], cells[10]]
+                .iter()
+                .all(|c| c.ends_with(" m")),
             "{row}"
         );
     }
@@ -149,4 +155,29 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     let again = real_replay(&tub, &out);
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
+}
+
+#[test]
+fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
+    // SELECT is cut from the held-out part, so it must leave some of it to report on.
+    let dir = tempfile::tempdir().unwrap();
+    let tub = dir.path().join("tub");
+    std::fs::create_dir_all(&tub).unwrap();
+    std::fs::write(tub.join("manifest.json"), "{}").unwrap();
+    let out = dir.path().join("out");
+    let o = Command::new("bash")
+        .arg(repo("scripts/real-replay.sh"))
+        .arg(&tub)
+        .arg(&out)
+        .env("BIN", env!("CARGO_BIN_EXE_jetpilot"))
+        .env("SELECT", "0.3")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("SELECT must be 0 or more and below SPLIT (0.3), got '0.3'"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
 }

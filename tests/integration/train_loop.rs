@@ -390,27 +390,38 @@ fn ddpg_evaluates_and_picks_best_onnx_in_the_selection_world() {
         .split(',')
         .map(|x| x.parse().unwrap())
         .collect();
-    assert_eq!(first[0], 0.0, "the first evaluation is at episode 0: {first:?}");
+    assert_eq!(
+        first[0], 0.0,
+        "the first evaluation is at episode 0: {first:?}"
+    );
     let laps = |world: &Path, name: &str| -> f64 {
         let json = dir.path().join(name);
         ok(&jetpilot(
             &["eval", "--seconds", "4", "--config"],
-            &[world, Path::new("--model"), &init, Path::new("--json"), &json],
+            &[
+                world,
+                Path::new("--model"),
+                &init,
+                Path::new("--json"),
+                &json,
+            ],
         ));
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        v["laps"].as_f64().unwrap_or_else(|| panic!("no laps in {v}"))
+        v["laps"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no laps in {v}"))
     };
     let (in_select, in_training) = (laps(&select, "select.json"), laps(&cfg, "train.json"));
-    // Float rounding between the trainer's head and the exported graph (see the test
-    // above) moves a 4 s drive by far less than 5 %.
-    let near = |a: f64, b: f64| (a - b).abs() <= 0.05 * b.abs() + 1e-3;
+    // The two worlds are far apart in laps (0.016 on the mat, -0.006 on the S-bends when
+    // written); the trainer's head and the exported graph differ by float rounding only
+    // (see the test above), so the evaluation lies next to the selection world's.
     assert!(
-        !near(in_select, in_training),
+        (in_select - in_training).abs() > 0.005,
         "the two worlds must tell apart: {in_select} vs {in_training} laps"
     );
     assert!(
-        near(first[7], in_select),
+        (first[7] - in_select).abs() < 0.25 * (in_select - in_training).abs(),
         "evaluated in the selection world: {} laps, eval there {in_select}, in training {in_training}",
         first[7]
     );

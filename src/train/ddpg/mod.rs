@@ -616,9 +616,10 @@ pub fn train(
     if !done_early && episode > 0 && (opts.eval_every == 0 || episode % opts.eval_every != 0) {
         evals.run(episode, env_steps, &mut actor)?;
     }
+    let eval_world = opts.select_cfg.as_ref().unwrap_or(&opts.cfg);
     let plot_warning = plot_curve(
         &opts.out,
-        (opts.eval_seconds * f64::from(opts.cfg.sim.control_hz)).round(),
+        (opts.eval_seconds * f64::from(eval_world.sim.control_hz)).round(),
     )?;
     Ok(DdpgReport {
         episodes: episode,
