@@ -43,8 +43,11 @@ pub struct IlArgs {
     bn_momentum: Option<f64>,
     /// Keep every BatchNorm's running statistics (the start's, ImageNet's for a pretrained
     /// start) and normalise with them in training too; their scale and shift still learn.
-    #[arg(long)]
-    freeze_bn: bool,
+    /// `--freeze-bn false` lets them follow the batches. Default: on for `--init imagenet`
+    /// or a .pth (the pretrained starts' recipe, docs/results/pretrained-backbones.md),
+    /// off otherwise.
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL")]
+    freeze_bn: Option<bool>,
     /// The backbone's learning rate as a share of --lr (the output layer always has --lr);
     /// below 1 keeps more of a pretrained backbone; 0 freezes it, BatchNorm statistics
     /// included, and trains the output layer alone (a linear probe, several times faster).
@@ -61,9 +64,10 @@ pub struct IlArgs {
     epochs: usize,
     #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
     batch: u64,
-    /// Adam learning rate.
-    #[arg(long, default_value_t = 1e-3)]
-    lr: f64,
+    /// Adam learning rate (default 1e-3; 1e-4 for `--init imagenet` or a .pth, the
+    /// pretrained starts' recipe).
+    #[arg(long)]
+    lr: Option<f64>,
     /// Share of the demonstrations held out to pick the best epoch.
     #[arg(long, default_value_t = 0.1)]
     test_fraction: f32,
@@ -174,6 +178,9 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
         "demonstrations decoded"
     );
     let mut opts = IlOptions::paper(args.out.clone(), contract, labels);
+    // A state dict (ImageNet's, or a .pth) is a pretrained classifier whose head is
+    // replaced: its recipe, chosen on real frames, is frozen statistics and a low rate.
+    let pretrained = start.init.is_some() && start.contract.is_none();
     opts.init = start.init;
     opts.arch = start.arch;
     if let Some(m) = args.bn_momentum {
@@ -188,11 +195,18 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
         "--backbone-lr must be 0 or more (a share of --lr), got {}",
         args.backbone_lr
     );
-    opts.freeze_bn = args.freeze_bn;
+    opts.freeze_bn = args.freeze_bn.unwrap_or(pretrained);
+    opts.lr = args.lr.unwrap_or(if pretrained { 1e-4 } else { 1e-3 });
+    if pretrained && (args.freeze_bn.is_none() || args.lr.is_none()) {
+        tracing::info!(
+            freeze_bn = opts.freeze_bn,
+            lr = opts.lr,
+            "a pretrained start: its fine-tuning recipe (--freeze-bn and --lr override)"
+        );
+    }
     opts.backbone_lr = args.backbone_lr;
     opts.epochs = args.epochs;
     opts.batch = args.batch as usize;
-    opts.lr = args.lr;
     opts.test_fraction = args.test_fraction;
     opts.seed = args.seed;
     opts.resume = args.resume;

@@ -338,3 +338,82 @@ fn a_probe_on_cells_starts_a_fine_tune() {
     }
     assert_eq!(after["_fc.weight"].0, vec![2, 1280 * 4], "a 2x2 map's head");
 }
+
+/// `train il --init imagenet`: the ImageNet classifier's head is replaced by one that
+/// answers the training frames' mean label, and the pretrained starts' recipe (frozen
+/// BatchNorm statistics, lr 1e-4) is the default. At lr 0 nothing moves, so every frame
+/// gets that constant.
+#[cfg(feature = "train")]
+#[test]
+fn an_imagenet_start_begins_at_the_mean_label_with_its_recipe() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = xy_folder(dir.path());
+    install_imagenet();
+    let out = dir.path().join("il");
+    let o = jetpilot(&[
+        "train",
+        "il",
+        "--data",
+        data.to_str().unwrap(),
+        "--init",
+        "imagenet",
+        "--input-size",
+        "64",
+        "--head",
+        "xy",
+        "--epochs",
+        "1",
+        "--batch",
+        "8",
+        "--lr",
+        "0",
+        "--no-augment",
+        "--test-fraction",
+        "0.25",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "{log}");
+    assert!(
+        log.contains("a pretrained start") && log.contains("freeze_bn=true"),
+        "{log}"
+    );
+    assert!(
+        log.contains("starts at the training frames' mean label"),
+        "{log}"
+    );
+    scored_px(&out.join("last.onnx"), &data, &dir.path().join("score"));
+    let csv = std::fs::read_to_string(dir.path().join("score/frames.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            l.split(',')
+                .skip(2)
+                .take(4)
+                .map(|v| v.parse().unwrap())
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), 16);
+    let mean_label = |c: usize| rows.iter().map(|r| r[c]).sum::<f64>() / 16.0;
+    for r in &rows {
+        // One answer for every picture: the head's weights are zero.
+        assert!(
+            (r[2] - rows[0][2]).abs() < 1e-4 && (r[3] - rows[0][3]).abs() < 1e-4,
+            "{csv}"
+        );
+    }
+    // The mean of 12 of the 16 labels, near all 16's (labels span about +-0.6).
+    assert!((rows[0][2] - mean_label(0)).abs() < 0.1, "{csv}");
+    assert!((rows[0][3] - mean_label(1)).abs() < 0.1, "{csv}");
+    assert!(
+        rows[0][2].abs() > 1e-3,
+        "not the zero a bias-free head would give: {csv}"
+    );
+}
