@@ -181,3 +181,77 @@ fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
     );
     assert!(!out.exists(), "nothing written");
 }
+
+/// A JetBot's drive as the daemon records one: frames, the commands and the wheel duties
+/// (`wheels/*`), no poses: 20 s of the scripted expert on the mat through JetBot's camera
+/// (config/sim.toml).
+fn jetbot_tub(dir: &Path) -> PathBuf {
+    let drive = dir.join("drive");
+    let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["-q", "sim", "--expert", "--seconds", "20", "--config"])
+        .arg(repo("config/sim.toml"))
+        .arg("--record")
+        .arg(&drive)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let tub = dir.join("tub");
+    let r = TubReader::open(&drive).unwrap();
+    let inputs = TubInputs {
+        wheels: true,
+        ..TubInputs::DONKEY
+    };
+    let mut w = TubWriter::create(&tub, &inputs, 1.7e9).unwrap();
+    for rec in r.records() {
+        assert!(
+            rec.wheels.is_some(),
+            "the simulated JetBot records its wheels"
+        );
+        let mut copy = rec.clone();
+        copy.pose = None;
+        copy.reward = None;
+        copy.target = None;
+        copy.pilot_angle = None;
+        copy.pilot_throttle = None;
+        w.append(&copy, &std::fs::read(r.image_path(rec)).unwrap())
+            .unwrap();
+    }
+    w.flush_and_sync().unwrap();
+    tub
+}
+
+#[test]
+fn real_replay_sh_runs_a_jetbot_recording_to_its_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let tub = jetbot_tub(dir.path());
+    let out = dir.path().join("out");
+    let o = real_replay(&tub, &out);
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "{log}");
+    // The wheels' fields chose the differential-drive prior and JetBot's defaults.
+    let poses_log = std::fs::read_to_string(out.join("poses.log")).unwrap();
+    assert!(poses_log.contains("differential drive"), "{poses_log}");
+    let early = std::fs::read_to_string(out.join("poses/early.toml")).unwrap();
+    assert!(!early.contains("vehicle = \"car\""), "{early}");
+    let ddpg_log = std::fs::read_to_string(out.join("ddpg.log")).unwrap();
+    assert!(ddpg_log.contains("best in middle.toml: "), "{ddpg_log}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for policy in ["expert", "il", "ddpg_last", "ddpg_best"] {
+        let row = report
+            .lines()
+            .find(|l| l.starts_with(&format!("| {policy} |")))
+            .unwrap_or_else(|| panic!("no row for {policy}: {report}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        assert_eq!(cells.len(), 12, "{row}");
+        assert!(
+            [cells[2], cells[5], cells[8]]
+                .iter()
+                .all(|c| c.parse::<u32>().is_ok()),
+            "{row}"
+        );
+    }
+}
