@@ -636,18 +636,6 @@ fn check_options(opts: &IlOptions) -> Result<(), TrainError> {
     Ok(())
 }
 
-/// The mean of `idx`'s labels (0, 0 for none).
-fn mean_label(data: &Dataset, idx: &[usize]) -> [f32; 2] {
-    let mut sum = [0.0f64; 2];
-    for &i in idx {
-        for (s, l) in sum.iter_mut().zip(data.samples[i].label) {
-            *s += f64::from(l);
-        }
-    }
-    let n = idx.len().max(1) as f64;
-    [(sum[0] / n) as f32, (sum[1] / n) as f32]
-}
-
 /// Runs imitation learning on `data`; `on_epoch` sees every finished epoch.
 pub fn train(
     data: &Dataset,
@@ -659,7 +647,9 @@ pub fn train(
     std::fs::create_dir_all(&opts.out).map_err(io_err(&opts.out))?;
     let own = data.own();
     let (train_idx, test_idx) = split(own, opts.test_fraction, opts.seed);
-    let (mut model, mut state) = initial_model(opts, &device, mean_label(data, &train_idx))?;
+    let train_labels: Vec<[f32; 2]> = train_idx.iter().map(|&i| data.samples[i].label).collect();
+    let head_bias = crate::score::mean_label(&train_labels);
+    let (mut model, mut state) = initial_model(opts, &device, head_bias)?;
     let mixed: Vec<usize> = (own..data.samples.len()).collect();
     let share = if mixed.is_empty() {
         0.0
