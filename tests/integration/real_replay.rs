@@ -31,19 +31,31 @@ fn donkeycar_tub(dir: &Path) -> PathBuf {
         ),
     )
     .unwrap();
+    // What a DonkeyCar records: no poses, rewards, labels or pilot fields.
+    owner_tub(dir, &cfg, &TubInputs::DONKEY)
+}
+
+/// 20 s of the scripted expert under `cfg`, copied into `dir/tub` with `inputs`' fields
+/// only (frames, the commands, and the wheels where `inputs` has them): what the owner's
+/// robot would have recorded, without the simulator's poses, rewards, labels or pilot
+/// fields.
+fn owner_tub(dir: &Path, cfg: &Path, inputs: &TubInputs) -> PathBuf {
     let drive = dir.join("drive");
     let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
         .args(["-q", "sim", "--expert", "--seconds", "20", "--config"])
-        .arg(&cfg)
+        .arg(cfg)
         .arg("--record")
         .arg(&drive)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // What a DonkeyCar records: no poses, rewards, labels or pilot fields.
     let tub = dir.join("tub");
     let r = TubReader::open(&drive).unwrap();
-    let mut w = TubWriter::create(&tub, &TubInputs::DONKEY, 1.7e9).unwrap();
+    assert!(
+        r.records().all(|rec| rec.wheels.is_some() == inputs.wheels),
+        "the simulated drive's wheels do not match the robot's"
+    );
+    let mut w = TubWriter::create(&tub, inputs, 1.7e9).unwrap();
     for rec in r.records() {
         let mut copy = rec.clone();
         copy.pose = None;
@@ -75,18 +87,48 @@ fn real_replay(tub: &Path, out: &Path) -> Output {
         .unwrap()
 }
 
-#[test]
-fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
-    let dir = tempfile::tempdir().unwrap();
-    let tub = donkeycar_tub(dir.path());
-    let out = dir.path().join("out");
-    let o = real_replay(&tub, &out);
+/// Runs the script and asserts it succeeded; its output.
+fn real_replay_ok(tub: &Path, out: &Path) -> String {
+    let o = real_replay(tub, out);
     let log = format!(
         "{}{}",
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(o.status.success(), "{log}");
+    log
+}
+
+/// The report's table: every policy's row on the three replays, with numbers in each
+/// cell.
+fn assert_report_rows(report: &str) {
+    for policy in ["expert", "il", "ddpg_last", "ddpg_best"] {
+        let row = report
+            .lines()
+            .find(|l| l.starts_with(&format!("| {policy} |")))
+            .unwrap_or_else(|| panic!("no row for {policy}: {report}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        assert_eq!(cells.len(), 12, "{row}");
+        let interventions = [cells[2], cells[5], cells[8]];
+        assert!(
+            interventions.iter().all(|c| c.parse::<u32>().is_ok()),
+            "{row}"
+        );
+        assert!(
+            [cells[4], cells[7], cells[10]]
+                .iter()
+                .all(|c| c.ends_with(" m")),
+            "{row}"
+        );
+    }
+}
+
+#[test]
+fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let tub = donkeycar_tub(dir.path());
+    let out = dir.path().join("out");
+    let log = real_replay_ok(&tub, &out);
 
     // The car was found from the tub's fields, with the wide lens, and the three replays
     // split the recording by time.
@@ -123,27 +165,8 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     assert!(demos.len() > 10, "{} demonstrations", demos.len());
     assert!(demos.records().all(|r| r.wheels.is_none()));
 
-    // The report: every policy's row on the three replays, with numbers in each cell.
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for policy in ["expert", "il", "ddpg_last", "ddpg_best"] {
-        let row = report
-            .lines()
-            .find(|l| l.starts_with(&format!("| {policy} |")))
-            .unwrap_or_else(|| panic!("no row for {policy}: {report}"));
-        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert_eq!(cells.len(), 12, "{row}");
-        let interventions = [cells[2], cells[5], cells[8]];
-        assert!(
-            interventions.iter().all(|c| c.parse::<u32>().is_ok()),
-            "{row}"
-        );
-        assert!(
-            [cells[4], cells[7], cells[10]]
-                .iter()
-                .all(|c| c.ends_with(" m")),
-            "{row}"
-        );
-    }
+    assert_report_rows(&report);
     assert!(report.contains("\nDDPG: "), "{report}");
     assert!(report.contains("- Demonstrations: recorded "), "{report}");
     assert!(
@@ -186,38 +209,11 @@ fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
 /// (`wheels/*`), no poses: 20 s of the scripted expert on the mat through JetBot's camera
 /// (config/sim.toml).
 fn jetbot_tub(dir: &Path) -> PathBuf {
-    let drive = dir.join("drive");
-    let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
-        .args(["-q", "sim", "--expert", "--seconds", "20", "--config"])
-        .arg(repo("config/sim.toml"))
-        .arg("--record")
-        .arg(&drive)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let tub = dir.join("tub");
-    let r = TubReader::open(&drive).unwrap();
     let inputs = TubInputs {
         wheels: true,
         ..TubInputs::DONKEY
     };
-    let mut w = TubWriter::create(&tub, &inputs, 1.7e9).unwrap();
-    for rec in r.records() {
-        assert!(
-            rec.wheels.is_some(),
-            "the simulated JetBot records its wheels"
-        );
-        let mut copy = rec.clone();
-        copy.pose = None;
-        copy.reward = None;
-        copy.target = None;
-        copy.pilot_angle = None;
-        copy.pilot_throttle = None;
-        w.append(&copy, &std::fs::read(r.image_path(rec)).unwrap())
-            .unwrap();
-    }
-    w.flush_and_sync().unwrap();
-    tub
+    owner_tub(dir, &repo("config/sim.toml"), &inputs)
 }
 
 #[test]
@@ -225,13 +221,7 @@ fn real_replay_sh_runs_a_jetbot_recording_to_its_report() {
     let dir = tempfile::tempdir().unwrap();
     let tub = jetbot_tub(dir.path());
     let out = dir.path().join("out");
-    let o = real_replay(&tub, &out);
-    let log = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "{log}");
+    real_replay_ok(&tub, &out);
     // The wheels' fields chose the differential-drive prior and JetBot's defaults.
     let poses_log = std::fs::read_to_string(out.join("poses.log")).unwrap();
     assert!(poses_log.contains("differential drive"), "{poses_log}");
@@ -240,18 +230,5 @@ fn real_replay_sh_runs_a_jetbot_recording_to_its_report() {
     let ddpg_log = std::fs::read_to_string(out.join("ddpg.log")).unwrap();
     assert!(ddpg_log.contains("best in middle.toml: "), "{ddpg_log}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for policy in ["expert", "il", "ddpg_last", "ddpg_best"] {
-        let row = report
-            .lines()
-            .find(|l| l.starts_with(&format!("| {policy} |")))
-            .unwrap_or_else(|| panic!("no row for {policy}: {report}"));
-        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert_eq!(cells.len(), 12, "{row}");
-        assert!(
-            [cells[2], cells[5], cells[8]]
-                .iter()
-                .all(|c| c.parse::<u32>().is_ok()),
-            "{row}"
-        );
-    }
+    assert_report_rows(&report);
 }

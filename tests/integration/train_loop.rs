@@ -85,6 +85,29 @@ fn ddpg(
     steps: &str,
     eval_seconds: &str,
 ) -> Output {
+    ddpg_with(cfg, init, demos, out, [episodes, steps, eval_seconds], &[])
+}
+
+/// [`ddpg`] with more path arguments (`--select-sim FILE`, say) after its own.
+fn ddpg_with(
+    cfg: &Path,
+    init: &Path,
+    demos: &Path,
+    out: &Path,
+    [episodes, steps, eval_seconds]: [&str; 3],
+    extra: &[&Path],
+) -> Output {
+    let mut paths: Vec<&Path> = vec![
+        Path::new("--sim"),
+        cfg,
+        Path::new("--init"),
+        init,
+        Path::new("--demos"),
+        demos,
+        Path::new("--out"),
+        out,
+    ];
+    paths.extend_from_slice(extra);
     jetpilot(
         &[
             "train",
@@ -106,16 +129,7 @@ fn ddpg(
             "--threads",
             "1",
         ],
-        &[
-            Path::new("--sim"),
-            cfg,
-            Path::new("--init"),
-            init,
-            Path::new("--demos"),
-            demos,
-            Path::new("--out"),
-            out,
-        ],
+        &paths,
     )
 }
 
@@ -355,37 +369,14 @@ fn ddpg_evaluates_and_picks_best_onnx_in_the_selection_world() {
     .unwrap();
 
     let out = dir.path().join("ddpg");
-    let args = [
-        "train",
-        "ddpg",
-        "--episodes",
-        "1",
-        "--episode-steps",
-        "20",
-        "--eval-seconds",
-        "4",
-        "--warmup-updates",
-        "5",
-        "--batch",
-        "16",
-        "--seed",
-        "1",
-        "--threads",
-        "1",
-    ];
-    let paths: [&Path; 10] = [
-        Path::new("--sim"),
+    ok(&ddpg_with(
         &cfg,
-        Path::new("--select-sim"),
-        &select,
-        Path::new("--init"),
         &init,
-        Path::new("--demos"),
         &tub,
-        Path::new("--out"),
         &out,
-    ];
-    ok(&jetpilot(&args, &paths));
+        ["1", "20", "4"],
+        &[Path::new("--select-sim"), &select],
+    ));
     let first: Vec<f64> = csv_rows(&out.join("ddpg_eval.csv"))[0]
         .split(',')
         .map(|x| x.parse().unwrap())
