@@ -102,7 +102,7 @@ pub const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
 /// (a random node should have its multicast bit, `node[0] & 1`, set, as RFC 4122 says for
 /// nodes that are no network card's address). [`capture_time_s`] reads the time back.
 pub fn uuid1(unix_ticks: u64, clock_seq: u16, node: [u8; 6]) -> String {
-    let t = unix_ticks + UNIX_EPOCH_TICKS;
+    let t = unix_ticks.saturating_add(UNIX_EPOCH_TICKS);
     let node: String = node.iter().map(|b| format!("{b:02x}")).collect();
     format!(
         "{:08x}-{:04x}-{:04x}-{:02x}{:02x}-{node}",
@@ -139,7 +139,7 @@ impl Uuid1Clock {
     /// The UUID for `now` (time since the Unix epoch).
     pub fn next(&mut self, now: std::time::Duration) -> String {
         let ticks = (now.as_nanos() / 100) as u64;
-        self.last = ticks.max(self.last + 1);
+        self.last = ticks.max(self.last.saturating_add(1));
         uuid1(self.last, self.clock_seq, self.node)
     }
 }

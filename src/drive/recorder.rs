@@ -200,8 +200,20 @@ fn write_loop(
     max_records: u64,
     xy_dir: Option<std::path::PathBuf>,
 ) {
-    use rand::SeedableRng;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x6a65_7462_6f74);
+    // JetBot's names: uuid1, the capture time (the wall clock at the first step, moved on
+    // by the steps' own clock) with a node drawn for this recording, so `score
+    // --split-by-time` can order the frames and a second recording into the same folder
+    // never meets the first one's names.
+    // The node comes from the clock and the process, not the OS's random source (which
+    // could fail): two recordings draw different nodes without any call that can panic.
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+        ^ (u64::from(std::process::id()) << 32);
+    let mut names = crate::dataset::jetbot_xy::Uuid1Clock::new(
+        &mut <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed),
+    );
+    let mut wall_at_zero: Option<std::time::Duration> = None;
     let mut jpeg = Vec::new();
     for msg in rx.iter() {
         let step = match msg {
@@ -241,7 +253,14 @@ fn write_loop(
         if let Some(dir) = &xy_dir {
             let (px, py) =
                 crate::dataset::jetbot_xy::pixel_for_label(tx, ty, step.width, step.height);
-            let uuid = crate::dataset::jetbot_xy::uuid_from_rng(&mut rng);
+            let step_time = std::time::Duration::from_millis(step.time_ms);
+            let zero = *wall_at_zero.get_or_insert_with(|| {
+                std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .unwrap_or_default()
+                    .saturating_sub(step_time)
+            });
+            let uuid = names.next(zero + step_time);
             if let Err(e) = crate::dataset::jetbot_xy::write_sample(dir, px, py, &jpeg, &uuid) {
                 tracing::error!(error = %e, "recording stopped (disk full?); what was written is kept");
                 counts.stop(format!("{e}; what was written is kept"));
@@ -318,6 +337,41 @@ mod tests {
         // left 0.4, right 0.2 at steering_gain 0.2 on an 8x8 frame: px = round(4 + 4 x).
         let s = &folder.samples()[0];
         assert_eq!((s.px, s.py), (5, 4));
+
+        // Named with uuid1 at the capture time: 33 ms apart, in order, near now.
+        let times: Vec<f64> = folder
+            .samples()
+            .iter()
+            .map(|s| {
+                let name = s.path.file_name().unwrap().to_string_lossy();
+                crate::dataset::jetbot_xy::capture_time_s(&name).unwrap()
+            })
+            .collect();
+        let mut sorted = times.clone();
+        sorted.sort_by(f64::total_cmp);
+        let steps: Vec<f64> = sorted.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(steps.iter().all(|d| (d - 0.033).abs() < 1e-5), "{steps:?}");
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_secs_f64();
+        assert!(
+            (now - sorted[0]).abs() < 60.0,
+            "{} against now {now}",
+            sorted[0]
+        );
+
+        // A second recording of the same commands into the same folder keeps both.
+        let tub = TubWriter::create(&dir.path().join("tub2"), &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 100, Some(xy.clone())).unwrap();
+        for i in 0..5 {
+            while !rec.offer(step(i)) {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+        assert_eq!(rec.finish(), 5);
+        let folder = crate::dataset::jetbot_xy::XyFolder::open(&xy).unwrap();
+        assert_eq!(folder.samples().len(), 10);
     }
 
     #[test]

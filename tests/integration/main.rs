@@ -34,3 +34,4 @@ mod train_loop;
 mod train_parity;
 mod web;
 mod web_browser;
+mod zero_shot;
