@@ -320,18 +320,23 @@ mod tests {
         assert!((angle * 0.2 - 0.1).abs() < 1e-6);
     }
 
-    #[test]
-    fn the_jetbot_folder_is_written_too() {
-        let dir = tempfile::tempdir().unwrap();
-        let xy = dir.path().join("xy");
-        let tub = TubWriter::create(&dir.path().join("tub"), &TubInputs::ALL, 1.0e9).unwrap();
-        let rec = Recorder::start(Box::new(tub), 100, Some(xy.clone())).unwrap();
+    /// Five steps recorded into a new tub at `tub` and the xy folder `xy`.
+    fn record_five_steps(tub: &std::path::Path, xy: &std::path::Path) {
+        let tub = TubWriter::create(tub, &TubInputs::ALL, 1.0e9).unwrap();
+        let rec = Recorder::start(Box::new(tub), 100, Some(xy.to_path_buf())).unwrap();
         for i in 0..5 {
             while !rec.offer(step(i)) {
                 std::thread::sleep(std::time::Duration::from_millis(1));
             }
         }
         assert_eq!(rec.finish(), 5);
+    }
+
+    #[test]
+    fn the_jetbot_folder_is_written_too() {
+        let dir = tempfile::tempdir().unwrap();
+        let xy = dir.path().join("xy");
+        record_five_steps(&dir.path().join("tub"), &xy);
         let folder = crate::dataset::jetbot_xy::XyFolder::open(&xy).unwrap();
         assert_eq!(folder.samples().len(), 5);
         // left 0.4, right 0.2 at steering_gain 0.2 on an 8x8 frame: px = round(4 + 4 x).
@@ -339,7 +344,7 @@ mod tests {
         assert_eq!((s.px, s.py), (5, 4));
 
         // Named with uuid1 at the capture time: 33 ms apart, in order, near now.
-        let times: Vec<f64> = folder
+        let mut sorted: Vec<f64> = folder
             .samples()
             .iter()
             .map(|s| {
@@ -347,7 +352,6 @@ mod tests {
                 crate::dataset::jetbot_xy::capture_time_s(&name).unwrap()
             })
             .collect();
-        let mut sorted = times.clone();
         sorted.sort_by(f64::total_cmp);
         let steps: Vec<f64> = sorted.windows(2).map(|w| w[1] - w[0]).collect();
         assert!(steps.iter().all(|d| (d - 0.033).abs() < 1e-5), "{steps:?}");
@@ -362,14 +366,7 @@ mod tests {
         );
 
         // A second recording of the same commands into the same folder keeps both.
-        let tub = TubWriter::create(&dir.path().join("tub2"), &TubInputs::ALL, 1.0e9).unwrap();
-        let rec = Recorder::start(Box::new(tub), 100, Some(xy.clone())).unwrap();
-        for i in 0..5 {
-            while !rec.offer(step(i)) {
-                std::thread::sleep(std::time::Duration::from_millis(1));
-            }
-        }
-        assert_eq!(rec.finish(), 5);
+        record_five_steps(&dir.path().join("tub2"), &xy);
         let folder = crate::dataset::jetbot_xy::XyFolder::open(&xy).unwrap();
         assert_eq!(folder.samples().len(), 10);
     }
