@@ -4,9 +4,10 @@
 # motor driver on a virtual PCA9685, the watchdog), with the web page on to watch it. It ends
 # with the drive's summary (interventions, autonomy, laps) and the trace, .cache/demo/trace.png.
 #
-# The first run makes its policy, once, in about a minute: 600 frames collected the way
-# JetBot's road-following notebook does (`sim --scatter`), and the ImageNet EfficientNet-Lite0
-# with its output layer fitted to them in closed form (`train probe`). It is cached in
+# The first run makes its policy, once, in a few minutes: 600 frames collected on the mat
+# the way JetBot's road-following notebook does (`sim --scatter`) and 600 more on random
+# road layouts (`--random-layouts`), and the ImageNet EfficientNet-Lite0 with its output
+# layer fitted to them in closed form (`train probe`). It is cached in
 # .cache/demo (delete the folder to fit it again). Installs what it needs, idempotently:
 # libclang-dev (and pip), the ONNX Runtime library, the ImageNet weights, the release build.
 #
@@ -23,14 +24,15 @@ BIN=target/release/jetpilot
 CFG=config/sim.toml
 DIR=.cache/demo
 # The recipe: when it changes, the cached policy is fitted again.
-RECIPE="scatter 600; probe imagenet lite0 224 xy grid 2 mirror on"
+RECIPE="scatter 600 + 600 random layouts; probe imagenet lite0 224 xy grid 2 mirror on"
 if [ ! -f "$DIR/policy.onnx" ] || [ "$(cat "$DIR/recipe" 2>/dev/null)" != "$RECIPE" ]; then
-  echo "demo: fitting the demo's policy (once; about a minute)"
-  rm -rf "$DIR/scatter" "$DIR/probe"
+  echo "demo: fitting the demo's policy (once; a few minutes)"
+  rm -rf "$DIR/scatter" "$DIR/layouts" "$DIR/probe"
   mkdir -p "$DIR"
   "$BIN" -q sim --config "$CFG" --scatter 600 --record-xy "$DIR/scatter"
-  "$BIN" -q train probe --config "$CFG" --data "$DIR/scatter" --init imagenet --input-size 224 \
-    --head xy --grid 2 --mirror on -o "$DIR/probe"
+  "$BIN" -q sim --config "$CFG" --scatter 600 --random-layouts --record-xy "$DIR/layouts"
+  "$BIN" -q train probe --config "$CFG" --data "$DIR/layouts" --data "$DIR/scatter" --init imagenet \
+    --input-size 224 --head xy --grid 2 --mirror on -o "$DIR/probe"
   mv "$DIR/probe/probe.onnx" "$DIR/policy.onnx"
   echo "$RECIPE" >"$DIR/recipe"
 fi
