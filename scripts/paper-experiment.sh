@@ -18,7 +18,11 @@
 # used; jetbot for JetBot's fisheye, the config's default), BIN (a built jetpilot: no build, so a long run is not disturbed by
 # rebuilding the checkout it runs from), REUSE_IL (the OUT of an earlier run: its demos and
 # imitation policies are reused, each charged the wall time it took then, from
-# il_<seed>.seconds, so a later IL + DDPG run starts from the very policy the IL row scored).
+# il_<seed>.seconds, so a later IL + DDPG run starts from the very policy the IL row scored),
+# IL_INIT (empty: `train il`, ResNet-18 from random weights at 96x96, the paper's network;
+# imagenet: `train probe --init imagenet`, a speed-steering head on the pooled features of
+# the ImageNet EfficientNet-Lite0 at 224, which `train ddpg` fine-tunes as its actor; a
+# ridge fit has no seed, so every seed starts from the same probe and IL_EPOCHS is unused).
 #
 # The demonstrations are recorded once, on the default track (the JetBot mat driven
 # counter-clockwise), and are the same for every method and track, so the question is
@@ -64,6 +68,12 @@ fi
 ILDDPG_FLAGS=${ILDDPG_FLAGS:---search-step 0.1 --anchor-decay-updates 4000 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
 
 METHODS=${METHODS:-il ilddpg ddpg}
+IL_INIT=${IL_INIT:-}
+case "$IL_INIT" in
+  "") IL_FILE=best.onnx ;;
+  imagenet) IL_FILE=probe.onnx ;;
+  *) echo "IL_INIT must be empty (train il from random weights) or imagenet, not '$IL_INIT'" >&2; exit 2 ;;
+esac
 TRACK_FILTER=${TRACK_FILTER:-.}
 runs() { [[ " $METHODS " == *" $1 "* ]]; }
 
@@ -87,7 +97,7 @@ M="$OUT/manifest.toml"
 {
   echo "# written by scripts/paper-experiment.sh at $(git rev-parse --short HEAD) on $(date -u +%F)"
   echo "# SEEDS='$SEEDS' BUDGET_MIN=$BUDGET_MIN IL_EPOCHS=$IL_EPOCHS EVAL_S=$EVAL_S EVAL_EVERY=$EVAL_EVERY METHODS='$METHODS' TRACK_FILTER='$TRACK_FILTER'"
-  echo "# ILDDPG_FLAGS='$ILDDPG_FLAGS'"
+  echo "# ILDDPG_FLAGS='$ILDDPG_FLAGS' IL_INIT='$IL_INIT'"
   echo "budgets_min = $BUDGETS"
   echo "test_seconds = $EVAL_S"
 } > "$M"
@@ -108,14 +118,21 @@ for seed in $SEEDS; do
   il_s=0
   if runs il || runs ilddpg; then
     if [ -n "${REUSE_IL:-}" ]; then
-      for f in "$REUSE_IL/il_$seed/best.onnx" "$REUSE_IL/il_$seed.seconds"; do
+      for f in "$REUSE_IL/il_$seed/$IL_FILE" "$REUSE_IL/il_$seed.seconds"; do
         [ -f "$f" ] || { echo "REUSE_IL: $f is missing" >&2; exit 1; }
       done
       cp -r "$REUSE_IL/il_$seed" "$REUSE_IL/il_$seed.seconds" "$OUT/"
     else
       t0=$(now)
-      $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
-        --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
+      if [ "$IL_INIT" = imagenet ]; then
+        scripts/install-imagenet-weights.sh > /dev/null  # once, outside the timed part
+        t0=$(now)
+        $B train probe --config "$CFG" --init imagenet --input-size 224 --head speed-steering \
+          --grid 1 --mirror off --data "$OUT/demos" -o "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
+      else
+        $B train il --config "$CFG" --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" \
+          --seed "$seed" --data "$OUT/demos" --out "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
+      fi
       echo "$(since "$t0")" > "$OUT/il_$seed.seconds"
     fi
     il_s=$(cat "$OUT/il_$seed.seconds")
@@ -130,7 +147,7 @@ for seed in $SEEDS; do
     read -r -a road <<< "${entry#*|}"
     slug=$(echo "$name" | tr -c 'a-zA-Z0-9\n' '_')
     if runs il; then
-      $B eval --config "$CFG" --model "$OUT/il_$seed/best.onnx" "${road[@]}" "${CAM[@]}" --seconds "$EVAL_S" \
+      $B eval --config "$CFG" --model "$OUT/il_$seed/$IL_FILE" "${road[@]}" "${CAM[@]}" --seconds "$EVAL_S" \
         --json "$OUT/il_${seed}_$slug.json" > /dev/null
       printf '\n[[run]]\nmethod = "IL"\nseed = %s\ntrack = "%s"\noffset_s = %s\neval_json = "%s"\n' \
         "$seed" "$name" "$il_s" "il_${seed}_$slug.json" >> "$M"
@@ -138,7 +155,7 @@ for seed in $SEEDS; do
 
     if runs ilddpg; then
       # shellcheck disable=SC2086
-      $B train ddpg --sim "$CFG" "${road[@]}" "${CAM[@]}" --seed "$seed" --init "$OUT/il_$seed/best.onnx" \
+      $B train ddpg --sim "$CFG" "${road[@]}" "${CAM[@]}" --seed "$seed" --init "$OUT/il_$seed/$IL_FILE" \
         --demos "$OUT/demos" --minutes "$left_min" $ILDDPG_FLAGS \
         --eval-seconds "$EVAL_S" --eval-every "$EVAL_EVERY" \
         --out "$OUT/ilddpg_${seed}_$slug" > "$OUT/ilddpg_${seed}_$slug.log" 2>&1
