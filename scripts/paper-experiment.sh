@@ -118,10 +118,17 @@ for seed in $SEEDS; do
   il_s=0
   if runs il || runs ilddpg; then
     if [ -n "${REUSE_IL:-}" ]; then
-      for f in "$REUSE_IL/il_$seed/$IL_FILE" "$REUSE_IL/il_$seed.seconds"; do
+      from=$REUSE_IL/il_$seed
+      if [ "$IL_INIT" = imagenet ] && [ ! -d "$from" ]; then
+        # a ridge fit has no seed: the earlier run's probe (of its first seed) is this seed's
+        from=$(find "$REUSE_IL" -maxdepth 1 -name 'il_*' -type d | sort | head -n 1)
+        from=${from:-$REUSE_IL/il_$seed}
+      fi
+      for f in "$from/$IL_FILE" "$from.seconds"; do
         [ -f "$f" ] || { echo "REUSE_IL: $f is missing" >&2; exit 1; }
       done
-      cp -r "$REUSE_IL/il_$seed" "$REUSE_IL/il_$seed.seconds" "$OUT/"
+      cp -r "$from" "$OUT/il_$seed"
+      cp "$from.seconds" "$OUT/il_$seed.seconds"
     else
       t0=$(now)
       if [ "$IL_INIT" = imagenet ]; then
