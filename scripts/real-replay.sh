@@ -17,9 +17,12 @@
 #    `sim.recording_span` set to each: their own frames, their own road. SELECT=0: no
 #    middle part, DDPG picks best.onnx on the early replay (the two-part split of the
 #    script before commit de3f0cc).
-# 3. Imitation: `train probe` (the frozen ImageNet EfficientNet-Lite0, its output layer fitted
-#    in closed form, 1x1 pooled so `train ddpg --init` takes it) on the training part's
-#    frames, speed_steering; `score` on the held-out frames.
+# 3. Imitation on the training part's frames, speed_steering, and `score` on the held-out
+#    frames. IL=probe (the default): `train probe` (the frozen ImageNet EfficientNet-Lite0 at
+#    224, its output layer fitted in closed form, 1x1 pooled so `train ddpg --init` takes
+#    it). IL=finetune: `train il --init imagenet` (the whole Lite0 fine-tuned at 96x96 with
+#    the pretrained starts' recipe, IL_EPOCHS epochs, default 10, seeded by SEED;
+#    `--leave-latest SPLIT` keeps the held-out frames out), about 5 minutes more.
 # 4. `eval` (EVAL_SECONDS, default 120) on every part's replay of the scripted expert at the
 #    recording's mean speed (the bar: is the replay drivable?) and of the imitation policy;
 #    `train ddpg`
@@ -62,6 +65,8 @@ EVAL_SECONDS=${EVAL_SECONDS:-120}
 DDPG_EVAL_SECONDS=${DDPG_EVAL_SECONDS:-60}
 SEED=${SEED:-0}
 DEMOS=${DEMOS:-expert}
+IL=${IL:-probe}
+IL_EPOCHS=${IL_EPOCHS:-10}
 DDPG_FLAGS=${DDPG_FLAGS---search-step 0.1 --failure-resets 0.5 --actor-lr 1e-4 --noise ou --sigma-steering 0.3 --sigma-speed 0.05}
 if [ -z "$TUB" ] || [ -z "$OUT" ]; then
   echo "usage: scripts/real-replay.sh TUB OUT: TUB is a recording (a tub folder), OUT the folder to write" >&2
@@ -75,6 +80,11 @@ if [ -e "$OUT/poses" ]; then
   echo "real-replay: $OUT/poses exists: give a new OUT (nothing is overwritten)" >&2
   exit 2
 fi
+case "$IL" in probe) IL_FILE=probe.onnx ;; finetune) IL_FILE=last.onnx ;; *)
+  echo "real-replay: IL must be probe or finetune, got '$IL'" >&2
+  exit 2
+  ;;
+esac
 case "$DEMOS" in expert | none) ;; *)
   echo "real-replay: DEMOS must be expert or none, got '$DEMOS'" >&2
   exit 2
@@ -133,9 +143,15 @@ span "$LATE" 1.0 late.toml
 
 echo "real-replay: imitation on the earliest $EARLY of the frames"
 rm -rf "$OUT/il"
-"$B" -q train probe --data "$OUT/poses" --config "$OUT/poses/replay.toml" --head speed-steering \
-  --grid 1 --leave-latest "$SPLIT" -o "$OUT/il" > "$OUT/il.log" 2>&1
-"$B" -q score --model "$OUT/il/probe.onnx" --data "$OUT/poses" --config "$OUT/poses/replay.toml" \
+if [ "$IL" = probe ]; then
+  "$B" -q train probe --data "$OUT/poses" --config "$OUT/poses/replay.toml" --head speed-steering \
+    --grid 1 --leave-latest "$SPLIT" -o "$OUT/il" > "$OUT/il.log" 2>&1
+else
+  "$B" -q train il --data "$OUT/poses" --config "$OUT/poses/replay.toml" --init imagenet \
+    --input-size 96 --head speed-steering --epochs "$IL_EPOCHS" --seed "$SEED" \
+    --leave-latest "$SPLIT" -o "$OUT/il" > "$OUT/il.log" 2>&1
+fi
+"$B" -q score --model "$OUT/il/$IL_FILE" --data "$OUT/poses" --config "$OUT/poses/replay.toml" \
   --split-by-time "$SPLIT" --out "$OUT/score" > "$OUT/score.txt"
 
 evaluate() { # NAME MODEL|--expert SUFFIX: eval on every part's replay
@@ -162,7 +178,7 @@ done
 echo "real-replay: eval of the scripted expert at $SPEED m/s (the bar)"
 evaluate expert --expert _expert
 echo "real-replay: eval of the imitation policy"
-evaluate il "$OUT/il/probe.onnx" ""
+evaluate il "$OUT/il/$IL_FILE" ""
 DEMO_ARGS=()
 if [ "$DEMOS" = expert ]; then
   echo "real-replay: the expert's recovery demonstrations in the early replay"
@@ -175,7 +191,7 @@ echo "real-replay: DDPG against the early replay, $MINUTES minutes, best.onnx pi
 rm -rf "$OUT/ddpg"
 # shellcheck disable=SC2086 # DDPG_FLAGS is a list of flags
 (cd "$OUT/poses" && "$B" train ddpg --sim early.toml ${SELECT_ARGS[@]+"${SELECT_ARGS[@]}"} \
-  --init "$OUT/il/probe.onnx" --out "$OUT/ddpg" ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
+  --init "$OUT/il/$IL_FILE" --out "$OUT/ddpg" ${DEMO_ARGS[@]+"${DEMO_ARGS[@]}"} --minutes "$MINUTES" --eval-seconds "$DDPG_EVAL_SECONDS" --eval-every 10 \
   --seed "$SEED" $DDPG_FLAGS > "$OUT/ddpg.log" 2>&1)
 evaluate ddpg_last "$OUT/ddpg/last.onnx" ""
 evaluate ddpg_best "$OUT/ddpg/best.onnx" ""
@@ -195,7 +211,7 @@ row() { # NAME
 {
   echo "# Real replay of $(basename "$TUB")"
   echo
-  echo "\`scripts/real-replay.sh $TUB $OUT\` (SPLIT=$SPLIT SELECT=$SELECT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS DDPG_EVAL_SECONDS=$DDPG_EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
+  echo "\`scripts/real-replay.sh $TUB $OUT\` (IL=$IL SPLIT=$SPLIT SELECT=$SELECT MINUTES=$MINUTES EVAL_SECONDS=$EVAL_SECONDS DDPG_EVAL_SECONDS=$DDPG_EVAL_SECONDS SEED=$SEED), $(date -u +%Y-%m-%d), $(git rev-parse --short HEAD 2>/dev/null || echo '?')."
   echo
   echo "## Poses (\`poses/poses.png\`, \`poses/check-views.png\`)"
   echo

@@ -71,6 +71,11 @@ pub struct IlArgs {
     /// Share of the demonstrations held out to pick the best epoch.
     #[arg(long, default_value_t = 0.1)]
     test_fraction: f32,
+    /// Leave the latest FRACTION of --data's frames by capture time out of training
+    /// altogether (the frames `jetpilot score --split-by-time FRACTION` scores); the best
+    /// epoch is then picked among the earlier ones.
+    #[arg(long, value_name = "FRACTION")]
+    leave_latest: Option<f32>,
     /// Seed of the split, the shuffles, the augmentation and a random initialisation.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -144,6 +149,12 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
             args.test_fraction
         );
     }
+    if let Some(f) = args.leave_latest {
+        anyhow::ensure!(
+            f > 0.0 && f < 1.0,
+            "--leave-latest must be between 0 and 1 (exclusive), got {f}"
+        );
+    }
     il::check_rand_conv(args.rand_conv, &args.out)?;
     let labels = LabelMap::new(contract.output, &cfg.control.gains());
     let threads = args.decode_threads.unwrap_or_else(|| {
@@ -157,9 +168,9 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
     if args.mix.is_empty() && args.mix_share.is_some() {
         tracing::warn!("--mix-share without --mix: there is nothing to mix in");
     }
-    let mut dataset = data::load(&args.data, &contract, &labels, threads)?;
+    let mut dataset = data::load(&args.data, &contract, &labels, threads, args.leave_latest)?;
     if !args.mix.is_empty() {
-        let mix = data::load(&args.mix, &contract, &labels, threads).context("--mix")?;
+        let mix = data::load(&args.mix, &contract, &labels, threads, None).context("--mix")?;
         dataset.mix_in(mix)?;
     }
     const SHOWN: usize = 20;
@@ -168,6 +179,12 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
     }
     if dataset.warnings.len() > SHOWN {
         tracing::warn!("... and {} more warnings", dataset.warnings.len() - SHOWN);
+    }
+    if let Some(f) = args.leave_latest {
+        tracing::info!(
+            "split by capture time: learning from the earliest frames, leaving the latest {} ({f}) out",
+            dataset.left_out
+        );
     }
     tracing::info!(
         samples = dataset.own(),

@@ -50,6 +50,8 @@ pub struct Dataset {
     /// `samples[mixed_from..]` are extra frames mixed into training (`train il --mix`, see
     /// [`Dataset::mix_in`]); `samples.len()` when there are none.
     pub mixed_from: usize,
+    /// Frames left out as the latest by capture time (`load`'s `leave_latest`).
+    pub left_out: usize,
 }
 
 impl Dataset {
@@ -70,6 +72,7 @@ impl Dataset {
             warnings: Vec::new(),
             skipped: 0,
             mixed_from: n,
+            left_out: 0,
         }
     }
 
@@ -105,14 +108,19 @@ impl Dataset {
 /// threads. Labels of xy folders are made from the pixel position and each image's size.
 /// A file that cannot be read or decoded (a zero-byte or truncated JPEG, a missing image)
 /// is skipped with a warning naming it; folders that give no usable frame are an error.
+/// `leave_latest`: the latest share of all the folders' frames by capture time is left
+/// out (the frames `score --split-by-time` scores); frames without a time are then an
+/// error naming the first.
 pub fn load(
     dirs: &[PathBuf],
     contract: &ModelContract,
     map: &LabelMap,
     threads: usize,
+    leave_latest: Option<f32>,
 ) -> Result<Dataset, TrainError> {
     let mut warnings = Vec::new();
     let mut jobs: Vec<LabelledFrame> = Vec::new();
+    let mut left_out = 0;
     for dir in dirs {
         let listing = labelled::list(dir, map).map_err(|e| TrainError::Data {
             path: dir.display().to_string(),
@@ -120,6 +128,19 @@ pub fn load(
         })?;
         warnings.extend(listing.warnings);
         jobs.extend(listing.frames);
+    }
+    if let Some(share) = leave_latest {
+        let (earliest, latest) =
+            labelled::split_by_time(jobs, share).map_err(|e| TrainError::Data {
+                path: dirs
+                    .iter()
+                    .map(|d| d.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                reason: e.to_string(),
+            })?;
+        left_out = latest.len();
+        jobs = earliest;
     }
     if jobs.is_empty() {
         return Err(nothing_in(dirs, "no demonstrations to learn from"));
@@ -177,6 +198,7 @@ pub fn load(
     Ok(Dataset {
         size: contract.input_size,
         mixed_from: samples.len(),
+        left_out,
         samples,
         warnings,
         skipped,
@@ -322,6 +344,43 @@ mod tests {
     }
 
     #[test]
+    fn leave_latest_keeps_the_earliest_frames_by_capture_time() {
+        use crate::dataset::{encode_jpeg, jetbot_xy};
+        let dir = tempfile::tempdir().unwrap();
+        let mut jpeg = Vec::new();
+        encode_jpeg(&vec![128u8; 32 * 32 * 3], 32, 32, &mut jpeg).unwrap();
+        // Four frames a second apart (uuid1 ticks are 100 ns), written latest first, their
+        // x pixel 4, 8, 12, 16 in capture order: the latest quarter is the x = 16 frame.
+        for (k, px) in [(3u64, 16u32), (2, 12), (1, 8), (0, 4)] {
+            let name = jetbot_xy::uuid1(16_000_000_000_000_000 + k * 10_000_000, 7, [2; 6]);
+            jetbot_xy::write_sample(dir.path(), px, 16, &jpeg, &name).unwrap();
+        }
+        let contract = ModelContract {
+            input_size: 16,
+            ..ModelContract::default()
+        };
+        let dirs = [dir.path().to_path_buf()];
+        let all = load(&dirs, &contract, &map(OutputKind::Xy), 2, None).unwrap();
+        assert_eq!(all.samples.len(), 4);
+        let early = load(&dirs, &contract, &map(OutputKind::Xy), 2, Some(0.25)).unwrap();
+        // (px - 16) / 16 for the 32-wide frames: -0.75, -0.5, -0.25 stay, 0 is left out.
+        let mut xs: Vec<f32> = early.samples.iter().map(|s| s.label[0]).collect();
+        xs.sort_by(f32::total_cmp);
+        assert_eq!(xs, [-0.75, -0.5, -0.25]);
+        assert_eq!((all.left_out, early.left_out), (0, 1));
+
+        // A frame without a capture time cannot be placed in time: an error naming it.
+        jetbot_xy::write_sample(dir.path(), 4, 4, &jpeg, "no-time").unwrap();
+        let err = load(&dirs, &contract, &map(OutputKind::Xy), 2, Some(0.25))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("no-time") && err.contains("no capture time"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn unreadable_images_are_skipped_by_name_and_a_folder_of_them_is_an_error() {
         use crate::dataset::{encode_jpeg, jetbot_xy};
         let dir = tempfile::tempdir().unwrap();
@@ -340,7 +399,7 @@ mod tests {
             ..ModelContract::default()
         };
         let dirs = [dir.path().to_path_buf()];
-        let data = load(&dirs, &contract, &map(OutputKind::Xy), 2).unwrap();
+        let data = load(&dirs, &contract, &map(OutputKind::Xy), 2, None).unwrap();
         assert_eq!((data.samples.len(), data.skipped), (2, 2));
         let text = data.warnings.join("\n");
         assert!(
@@ -358,7 +417,7 @@ mod tests {
         for name in ["xy_016_008_a.jpg", "xy_008_016_b.jpg"] {
             std::fs::remove_file(dir.path().join(name)).unwrap();
         }
-        let err = load(&dirs, &contract, &map(OutputKind::Xy), 2)
+        let err = load(&dirs, &contract, &map(OutputKind::Xy), 2, None)
             .unwrap_err()
             .to_string();
         assert!(

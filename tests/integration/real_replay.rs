@@ -71,6 +71,11 @@ fn owner_tub(dir: &Path, cfg: &Path, inputs: &TubInputs) -> PathBuf {
 }
 
 fn real_replay(tub: &Path, out: &Path) -> Output {
+    real_replay_with(tub, out, &[])
+}
+
+/// The script with the quick settings above and `extra` variables in its environment.
+fn real_replay_with(tub: &Path, out: &Path, extra: &[(&str, &str)]) -> Output {
     Command::new("bash")
         .arg(repo("scripts/real-replay.sh"))
         .arg(tub)
@@ -83,13 +88,14 @@ fn real_replay(tub: &Path, out: &Path) -> Output {
             "DDPG_FLAGS",
             "--episodes 2 --episode-steps 60 --warmup-updates 10 --batch 16 --search-step 0.1",
         )
+        .envs(extra.iter().copied())
         .output()
         .unwrap()
 }
 
 /// Runs the script and asserts it succeeded; its output.
-fn real_replay_ok(tub: &Path, out: &Path) -> String {
-    let o = real_replay(tub, out);
+fn real_replay_ok(tub: &Path, out: &Path, extra: &[(&str, &str)]) -> String {
+    let o = real_replay_with(tub, out, extra);
     let log = format!(
         "{}{}",
         String::from_utf8_lossy(&o.stdout),
@@ -128,7 +134,7 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     let dir = tempfile::tempdir().unwrap();
     let tub = donkeycar_tub(dir.path());
     let out = dir.path().join("out");
-    let log = real_replay_ok(&tub, &out);
+    let log = real_replay_ok(&tub, &out, &[]);
 
     // The car was found from the tub's fields, with the wide lens, and the three replays
     // split the recording by time.
@@ -205,6 +211,23 @@ fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
     assert!(!out.exists(), "nothing written");
 }
 
+#[test]
+fn an_unknown_imitation_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let tub = dir.path().join("tub");
+    std::fs::create_dir_all(&tub).unwrap();
+    std::fs::write(tub.join("manifest.json"), "{}").unwrap();
+    let out = dir.path().join("out");
+    let o = real_replay_with(&tub, &out, &[("IL", "resnet")]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("IL must be probe or finetune, got 'resnet'"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
+}
+
 /// A JetBot's drive as the daemon records one: frames, the commands and the wheel duties
 /// (`wheels/*`), no poses: 20 s of the scripted expert on the mat through JetBot's camera
 /// (config/sim.toml).
@@ -221,7 +244,8 @@ fn real_replay_sh_runs_a_jetbot_recording_to_its_report() {
     let dir = tempfile::tempdir().unwrap();
     let tub = jetbot_tub(dir.path());
     let out = dir.path().join("out");
-    real_replay_ok(&tub, &out);
+    // With the imitation policy fine-tuned (one epoch here) instead of a probe.
+    real_replay_ok(&tub, &out, &[("IL", "finetune"), ("IL_EPOCHS", "1")]);
     // The wheels' fields chose the differential-drive prior and JetBot's defaults.
     let poses_log = std::fs::read_to_string(out.join("poses.log")).unwrap();
     assert!(poses_log.contains("differential drive"), "{poses_log}");
@@ -229,6 +253,11 @@ fn real_replay_sh_runs_a_jetbot_recording_to_its_report() {
     assert!(!early.contains("vehicle = \"car\""), "{early}");
     let ddpg_log = std::fs::read_to_string(out.join("ddpg.log")).unwrap();
     assert!(ddpg_log.contains("best in middle.toml: "), "{ddpg_log}");
+    // `train il` learnt from the training part only: its policy is the imitation row.
+    let il_log = std::fs::read_to_string(out.join("il.log")).unwrap();
+    assert!(il_log.contains("imitation learning: 1 epochs"), "{il_log}");
+    assert!(out.join("il/last.onnx").is_file() && !out.join("il/probe.onnx").exists());
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert_report_rows(&report);
+    assert!(report.contains("(IL=finetune SPLIT=0.3 "), "{report}");
 }
