@@ -131,14 +131,7 @@ pub fn load(
     }
     if let Some(share) = leave_latest {
         let (earliest, latest) =
-            labelled::split_by_time(jobs, share).map_err(|e| TrainError::Data {
-                path: dirs
-                    .iter()
-                    .map(|d| d.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                reason: e.to_string(),
-            })?;
+            labelled::split_by_time(jobs, share).map_err(|e| nothing_in(dirs, &e.to_string()))?;
         left_out = latest.len();
         jobs = earliest;
     }
@@ -205,7 +198,8 @@ pub fn load(
     })
 }
 
-/// The error for folders that gave nothing to train on, naming them all.
+/// The error for folders that gave nothing to train on (or frames that cannot be split by
+/// time), naming them all.
 pub fn nothing_in(dirs: &[PathBuf], reason: &str) -> TrainError {
     TrainError::Data {
         path: dirs

@@ -186,22 +186,20 @@ fn real_replay_sh_runs_a_donkeycar_tub_to_its_report() {
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
 }
 
+/// A folder the script takes for a tub (it has a manifest), for settings it refuses first.
+fn manifest_only_tub(dir: &Path) -> PathBuf {
+    let tub = dir.join("tub");
+    std::fs::create_dir_all(&tub).unwrap();
+    std::fs::write(tub.join("manifest.json"), "{}").unwrap();
+    tub
+}
+
 #[test]
 fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
     // SELECT is cut from the held-out part, so it must leave some of it to report on.
     let dir = tempfile::tempdir().unwrap();
-    let tub = dir.path().join("tub");
-    std::fs::create_dir_all(&tub).unwrap();
-    std::fs::write(tub.join("manifest.json"), "{}").unwrap();
-    let out = dir.path().join("out");
-    let o = Command::new("bash")
-        .arg(repo("scripts/real-replay.sh"))
-        .arg(&tub)
-        .arg(&out)
-        .env("BIN", env!("CARGO_BIN_EXE_jetpilot"))
-        .env("SELECT", "0.3")
-        .output()
-        .unwrap();
+    let (tub, out) = (manifest_only_tub(dir.path()), dir.path().join("out"));
+    let o = real_replay_with(&tub, &out, &[("SELECT", "0.3")]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
@@ -214,10 +212,7 @@ fn a_selection_part_as_large_as_the_held_out_part_is_refused_before_any_work() {
 #[test]
 fn an_unknown_imitation_is_refused_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
-    let tub = dir.path().join("tub");
-    std::fs::create_dir_all(&tub).unwrap();
-    std::fs::write(tub.join("manifest.json"), "{}").unwrap();
-    let out = dir.path().join("out");
+    let (tub, out) = (manifest_only_tub(dir.path()), dir.path().join("out"));
     let o = real_replay_with(&tub, &out, &[("IL", "resnet")]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
