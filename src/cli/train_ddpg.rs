@@ -50,8 +50,10 @@ pub struct DdpgArgs {
     eval_seconds: f64,
     /// Run the evaluations, and so choose best.onnx, in this simulator config's world instead
     /// of --sim's: a world held out from training (scripts/real-replay.sh passes a middle
-    /// part of the recording). Taken as written: --track and the other world flags change
-    /// the training world only. Its `[model]` and `[control]` should match --sim's.
+    /// part of the recording, or a config whose `[sim.layouts]` is on with another `seed`:
+    /// roads none of the training episodes drove). Taken as written: --track,
+    /// --random-layouts and the other world flags change the training world only. Its
+    /// `[model]` and `[control]` should match --sim's.
     #[arg(long, value_name = "FILE")]
     select_sim: Option<PathBuf>,
     /// Stop as soon as an evaluation has no intervention.

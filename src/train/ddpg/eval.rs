@@ -27,17 +27,15 @@ pub struct EvalOutcome {
     pub wall_seconds: f64,
 }
 
-/// Drives `policy` for `seconds` simulated seconds on `cfg`'s track (never a random layout).
+/// Drives `policy` for `seconds` simulated seconds in `cfg`'s world as written: its track,
+/// or its random layouts where `[sim.layouts]` is on (drawn from `sim.seed`, so every test
+/// of a run drives the same roads). [`test_world`] makes the training world's test.
 pub fn evaluate(
     cfg: &Config,
     policy: &mut dyn Policy,
     seconds: f64,
 ) -> Result<EvalOutcome, TrainError> {
     let sim_err = |e: String| TrainError::Backend(format!("simulator: {e}"));
-    // Tests are on the configured track, even where training draws random layouts.
-    let mut cfg = cfg.clone();
-    cfg.sim.layouts.enabled = false;
-    let cfg = &cfg;
     let mut rig = setup::build(cfg).map_err(|e| sim_err(e.to_string()))?;
     let params = DriveParams::from_config(cfg);
     let processor = FrameProcessor::new(
@@ -69,6 +67,20 @@ pub fn evaluate(
         laps: rig.world.laps(),
         wall_seconds: times.total,
     })
+}
+
+/// Where a run's tests drive: the `--select-sim` world as written (random layouts too, when
+/// its file turns them on), else the training world on its configured track: a run that
+/// trains on random layouts is tested on the track.
+pub fn test_world(train: &Config, select: Option<&Config>) -> Config {
+    match select {
+        Some(select) => select.clone(),
+        None => {
+            let mut cfg = train.clone();
+            cfg.sim.layouts.enabled = false;
+            cfg
+        }
+    }
 }
 
 /// What the best evaluation is chosen by: (autonomy in percent, rewards).
@@ -144,5 +156,23 @@ mod tests {
         // A start that earned nothing (DDPG from random weights) lets every evaluation count.
         let idle = outcome(10, 0);
         assert!(improves_on(outcome(9, 0), Some(idle), Some(idle)));
+    }
+
+    #[test]
+    fn a_selection_world_keeps_its_layouts_and_the_training_world_tests_on_its_track() {
+        let mut train: Config = toml::from_str("[sim]\nseed = 0").expect("config");
+        train.sim.layouts.enabled = true; // --random-layouts
+        let mut select: Config = toml::from_str("[sim]\nseed = 101").expect("config");
+        select.sim.layouts.enabled = true;
+
+        let on_track = test_world(&train, None);
+        assert!(!on_track.sim.layouts.enabled, "no --select-sim: the track");
+        assert_eq!(on_track.sim.seed, 0);
+        let held_out = test_world(&train, Some(&select));
+        assert!(
+            held_out.sim.layouts.enabled,
+            "--select-sim is taken as written"
+        );
+        assert_eq!(held_out.sim.seed, 101);
     }
 }

@@ -11,7 +11,8 @@
 //!     one episode: frame -> frozen backbone -> actor + exploration noise -> Env::step,
 //!                  n-step transitions into the replay; leaving the road ends it
 //!     updates between episodes: updates_per_step x the episode's steps
-//!     every `eval_every` episodes: evaluate (on `select_cfg`'s world where given); a
+//!     every `eval_every` episodes: evaluate (on `select_cfg`'s world as written where
+//!     given, random layouts too; else on the track, never a random layout); a
 //!     higher autonomy (then more rewards) replaces best.onnx, unless it earns under half
 //!     the start's rewards (it stopped)
 //! ```
@@ -40,7 +41,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use self::agent::{Agent, AgentConfig};
-use self::eval::{EvalOutcome, evaluate, improves_on};
+use self::eval::{EvalOutcome, evaluate, improves_on, test_world};
 use self::features::{Backbone, FeatureActor, Head};
 use self::noise::{Noise, NoiseKind};
 use self::replay::{NStep, Replay, Step};
@@ -315,6 +316,8 @@ impl State {
 /// The evaluations of one run: the log, the best so far and its export.
 struct Evaluations<'a, F> {
     opts: &'a DdpgOptions,
+    /// Where the tests drive ([`eval::test_world`]).
+    world: Config,
     contract: &'a ModelContract,
     started: Instant,
     log: CsvLog,
@@ -355,8 +358,7 @@ impl<F: FnMut(&EvalPoint, bool)> Evaluations<'_, F> {
         actor: &mut Acting,
     ) -> Result<bool, TrainError> {
         let mut policy = FeatureActor::new(&mut actor.backbone, &actor.head, self.contract);
-        let world = self.opts.select_cfg.as_ref().unwrap_or(&self.opts.cfg);
-        let outcome = evaluate(world, &mut policy, self.opts.eval_seconds)?;
+        let outcome = evaluate(&self.world, &mut policy, self.opts.eval_seconds)?;
         let point = EvalPoint {
             episode,
             env_steps,
@@ -460,6 +462,7 @@ pub fn train(
     let mut episodes_log = CsvLog::open(&episodes_csv(&opts.out), &EPISODE_HEADER, false)?;
     let mut evals = Evaluations {
         opts,
+        world: test_world(&opts.cfg, opts.select_cfg.as_ref()),
         contract: &contract,
         started,
         log: CsvLog::open(&eval_csv(&opts.out), &EVAL_HEADER, false)?,
