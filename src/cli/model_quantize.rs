@@ -10,7 +10,7 @@ use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
 use jetpilot::policy::onnx::{self, ModelProto};
 use jetpilot::policy::quantize::calibrate::{self, Runner};
 use jetpilot::policy::quantize::{ActivationType, Prepared, QdqOptions, RangeMethod};
-use jetpilot::policy::{ModelContract, Preprocessor};
+use jetpilot::policy::{ModelContract, OutputKind, Preprocessor};
 use prost::Message;
 
 #[derive(Debug, clap::Args)]
@@ -130,10 +130,21 @@ pub fn main(args: QuantizeArgs) -> anyhow::Result<ExitCode> {
     let prepared =
         Prepared::new(&model).with_context(|| format!("model {}", args.input.display()))?;
 
-    let map = LabelMap::new(contract.output, &SteeringGains::default());
+    // Calibration reads the frames only, so a folder labelled for the other head serves too
+    // (a JetBot xy folder for a speed_steering model, a tub for an xy one).
+    let gains = SteeringGains::default();
+    let other = match contract.output {
+        OutputKind::Xy => OutputKind::SpeedSteering,
+        OutputKind::SpeedSteering => OutputKind::Xy,
+    };
+    let (map, other_map) = (
+        LabelMap::new(contract.output, &gains),
+        LabelMap::new(other, &gains),
+    );
     let mut frames = Vec::new();
     for dir in &args.calibration {
         let listing = labelled::list(dir, &map)
+            .or_else(|first| labelled::list(dir, &other_map).map_err(|_| first))
             .with_context(|| format!("calibration data {}", dir.display()))?;
         for w in &listing.warnings {
             tracing::warn!("{w}");

@@ -216,3 +216,28 @@ fn optimize_writes_a_model_that_loads_as_it_is_and_only_on_its_machine() {
         text(&run)
     );
 }
+
+#[test]
+fn a_speed_steering_model_calibrates_on_a_jetbot_xy_folder() {
+    // Calibration needs the frames, not their labels: an xy folder serves a speed_steering
+    // model (it was refused as the wrong head's labels before 2026-12-06).
+    use jetpilot::policy::onnx::{self, Resnet18Weights};
+    use jetpilot::policy::{ModelContract, OutputKind};
+    let dir = tempfile::tempdir().unwrap();
+    let contract = ModelContract {
+        input_size: 32,
+        output: OutputKind::SpeedSteering,
+        ..ModelContract::default()
+    };
+    let model =
+        onnx::resnet18_model(32, &Resnet18Weights::random(2, 1), &contract, "test").expect("model");
+    let float = dir.path().join("speed_steering.onnx");
+    onnx::write_model(&float, &model).expect("write model");
+    let (data, out) = (xy_folder(dir.path()), dir.path().join("int8.onnx"));
+    let run = quantize(&float, &out, &data, &[]);
+    let t = text(&run);
+    assert!(run.status.success(), "{t}");
+    assert!(t.contains("calibrating on 24 frames (6 held out)"), "{t}");
+    let info = text(&jetpilot(&["model", "info", out.to_str().unwrap()]));
+    assert!(info.contains("speed_steering"), "{info}");
+}
