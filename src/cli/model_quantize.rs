@@ -15,7 +15,7 @@ use prost::Message;
 
 #[derive(Debug, clap::Args)]
 pub struct QuantizeArgs {
-    /// The float32 model (a ResNet-18 from `train il`, `train ddpg` or `model init`).
+    /// The float32 model (ResNet-18 or EfficientNet-Lite0, from `train il`, `train probe`, `train ddpg` or `model init`).
     input: PathBuf,
     /// Where to write the int8 model.
     #[arg(short, long, value_name = "FILE")]
