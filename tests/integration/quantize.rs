@@ -103,6 +103,39 @@ fn quantizes_keeps_the_contract_and_runs_as_integer_convolutions() {
 }
 
 #[test]
+fn the_last_convolution_can_stay_float() {
+    let dir = tempfile::tempdir().unwrap();
+    let (float, data) = (
+        common::write_model(dir.path(), 32, 1),
+        xy_folder(dir.path()),
+    );
+    let out = dir.path().join("int8.onnx");
+    let run = quantize(&float, &out, &data, &["--float-last", "1"]);
+    let t = text(&run);
+    assert!(run.status.success(), "{t}");
+    assert!(
+        t.contains(
+            "runs 19 convolutions as QLinearConv (1 left in float), 7 additions as QLinearAdd"
+        ),
+        "{t}"
+    );
+    let info = jetpilot(&["model", "info", out.to_str().unwrap()]);
+    assert!(
+        text(&info).contains("8-bit weights, uint8 activations, the last 1 convolution(s) float32"),
+        "{}",
+        text(&info)
+    );
+
+    let run = quantize(&float, &out, &data, &["--float-last", "20"]);
+    assert!(!run.status.success());
+    assert!(
+        text(&run).contains("the model has 20 convolutions; leaving the last 20 in float"),
+        "{}",
+        text(&run)
+    );
+}
+
+#[test]
 fn a_missed_tolerance_writes_nothing_and_says_by_how_much() {
     let dir = tempfile::tempdir().unwrap();
     let (float, data) = (

@@ -20,7 +20,7 @@ pub mod plan;
 pub mod qdq;
 pub mod tensor;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use crate::policy::onnx::OnnxError;
 use crate::policy::onnx::proto::{ModelProto, StringStringEntryProto, ValueInfoProto};
@@ -52,12 +52,14 @@ pub struct Prepared {
     pub folded: ModelProto,
     pub plan: Vec<plan::Activation>,
     pub folded_batch_norms: usize,
+    /// The first outputs of the convolutions that stay float32.
+    pub float_convs: BTreeSet<String>,
 }
 
 impl Prepared {
-    /// Folds and plans `model`; an opset below 13 (no per-channel QDQ) or a model with
-    /// nothing to quantize is an error.
-    pub fn new(model: &ModelProto) -> Result<Self, QuantizeError> {
+    /// Folds and plans `model`, its last `float_last` convolutions left in float32; an
+    /// opset below 13 (no per-channel QDQ) or a model with nothing to quantize is an error.
+    pub fn new(model: &ModelProto, float_last: usize) -> Result<Self, QuantizeError> {
         let opset = model
             .opset_import
             .iter()
@@ -75,7 +77,9 @@ impl Prepared {
             .as_mut()
             .ok_or_else(|| QuantizeError::Unsupported("the model has no graph".into()))?;
         let folded_batch_norms = fold::fold_batch_norms(graph)?;
-        let plan = plan::activations(graph);
+        let float_convs =
+            plan::last_convs(graph, float_last).map_err(QuantizeError::Unsupported)?;
+        let plan = plan::activations(graph, &float_convs);
         if plan.is_empty() {
             return Err(QuantizeError::Unsupported(
                 "no Conv or Add with constant weights to quantize".into(),
@@ -85,6 +89,7 @@ impl Prepared {
             folded,
             plan,
             folded_batch_norms,
+            float_convs,
         })
     }
 
@@ -126,7 +131,7 @@ impl Prepared {
             .graph
             .as_ref()
             .ok_or_else(|| QuantizeError::Unsupported("the model has no graph".into()))?;
-        m.graph = Some(qdq::rewrite(graph, &table, opts)?);
+        m.graph = Some(qdq::rewrite(graph, &table, &self.float_convs, opts)?);
         m.metadata_props.retain(|p| p.key != META_QUANTIZATION);
         m.metadata_props.push(StringStringEntryProto {
             key: META_QUANTIZATION.into(),
@@ -156,7 +161,7 @@ mod tests {
 
     #[test]
     fn resnet18_folds_every_batch_norm_and_rewrites_every_conv() {
-        let p = Prepared::new(model()).unwrap();
+        let p = Prepared::new(model(), 0).unwrap();
         assert_eq!(p.folded_batch_norms, 20);
         // input, conv1's ReLU, the max pool (same as the ReLU), and per block: conv1's
         // ReLU, conv2's output, the block's ReLU; plus the three downsample convs.
@@ -210,10 +215,45 @@ mod tests {
     }
 
     #[test]
+    fn the_last_conv_left_float_keeps_its_float_weights() {
+        let all = Prepared::new(model(), 0).unwrap();
+        let p = Prepared::new(model(), 1).unwrap();
+        assert_eq!(p.float_convs.len(), 1);
+        // The last conv (layer4.1.conv2) reads conv1's ReLU (still marked by conv1); its
+        // output, which the block's Add reads, is no longer quantized.
+        assert_eq!(p.plan.len(), all.plan.len() - 1);
+        let ranges = p.measured().into_iter().map(|n| (n, (-1.0, 1.0))).collect();
+        let opts = QdqOptions {
+            activations: ActivationType::U8,
+            weight_max: 127,
+        };
+        let q = p.quantize(&ranges, opts, "test").unwrap();
+        let g = q.graph.as_ref().unwrap();
+        let count = |op: &str| g.node.iter().filter(|n| n.op_type == op).count();
+        assert_eq!(count("DequantizeLinear"), p.plan.len() + 38);
+        let last = g
+            .node
+            .iter()
+            .find(|n| n.op_type == "Conv" && p.float_convs.contains(&n.output[0]))
+            .unwrap();
+        assert!(
+            last.input[0].ends_with("_dequantized"),
+            "it reads int8 values"
+        );
+        for w in &last.input[1..] {
+            assert!(!w.ends_with("_dequantized"), "{w}");
+            let t = g.initializer.iter().find(|t| &t.name == w).unwrap();
+            assert_eq!(t.data_type, 1, "{w} stays float32");
+        }
+        let err = Prepared::new(model(), 20).unwrap_err().to_string();
+        assert!(err.contains("has 20 convolutions"), "{err}");
+    }
+
+    #[test]
     fn an_old_opset_is_refused_with_its_number() {
         let mut model = model().clone();
         model.opset_import[0].version = 11;
-        let err = Prepared::new(&model).unwrap_err().to_string();
+        let err = Prepared::new(&model, 0).unwrap_err().to_string();
         assert!(err.contains("opset 11"), "{err}");
     }
 }

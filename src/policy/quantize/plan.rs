@@ -13,11 +13,15 @@
 //!   Runtime runs the pooling on the integers.
 //!
 //! Everything else (global pooling, the fully connected head) stays float32 and reads
-//! dequantized values.
+//! dequantized values, and so do the convolutions named to stay float ([`last_convs`]):
+//! they read dequantized values and their outputs are never quantized, not even for an
+//! `Add` that reads one (it then runs in float). A quantized output would let ONNX
+//! Runtime's `WeightBiasQuantization` quantize the float weights itself, between a
+//! DequantizeLinear input and a QuantizeLinear output.
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use crate::policy::onnx::proto::GraphProto;
+use crate::policy::onnx::proto::{GraphProto, NodeProto};
 
 /// One activation to quantize.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -27,8 +31,37 @@ pub struct Activation {
     pub same_as: Option<String>,
 }
 
-/// The activations in the order their producers run (graph inputs first).
-pub fn activations(graph: &GraphProto) -> Vec<Activation> {
+/// Whether `n` is a Conv whose weight is a constant (one the quantizer can make integer).
+fn weighted_conv(n: &NodeProto, inits: &BTreeSet<&str>) -> bool {
+    n.op_type == "Conv" && n.input.len() >= 2 && inits.contains(n.input[1].as_str())
+}
+
+/// The first outputs of the last `n` weighted convolutions in graph order (for
+/// EfficientNet-Lite0, 1 is `_conv_head`; for ResNet-18, `layer4.1.conv2`), or an error
+/// when the graph has no more than `n` of them (nothing would be left to quantize).
+pub fn last_convs(graph: &GraphProto, n: usize) -> Result<BTreeSet<String>, String> {
+    let inits: BTreeSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
+    let convs: Vec<&NodeProto> = graph
+        .node
+        .iter()
+        .filter(|c| weighted_conv(c, &inits))
+        .collect();
+    if n >= convs.len() && n > 0 {
+        return Err(format!(
+            "the model has {} convolutions; leaving the last {n} in float would quantize none",
+            convs.len()
+        ));
+    }
+    Ok(convs[convs.len() - n..]
+        .iter()
+        .filter_map(|c| c.output.first().cloned())
+        .collect())
+}
+
+/// The activations in the order their producers run (graph inputs first). The Convs whose
+/// first output is in `float` stay float32: they mark nothing, and their outputs (or the
+/// ReLU right after) are not quantized even where an `Add` reads them.
+pub fn activations(graph: &GraphProto, float: &BTreeSet<String>) -> Vec<Activation> {
     let inits: BTreeSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let graph_outputs: BTreeSet<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
     let mut readers: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
@@ -52,7 +85,10 @@ pub fn activations(graph: &GraphProto) -> Vec<Activation> {
     let mut marked: BTreeSet<String> = BTreeSet::new();
     for n in &graph.node {
         match n.op_type.as_str() {
-            "Conv" if n.input.len() >= 2 && inits.contains(n.input[1].as_str()) => {
+            "Conv"
+                if weighted_conv(n, &inits)
+                    && !n.output.first().is_some_and(|o| float.contains(o)) =>
+            {
                 marked.insert(n.input[0].clone());
                 marked.insert(after_relu(&n.output[0]));
             }
@@ -61,6 +97,12 @@ pub fn activations(graph: &GraphProto) -> Vec<Activation> {
                 marked.insert(after_relu(&n.output[0]));
             }
             _ => {}
+        }
+    }
+    for n in graph.node.iter().filter(|n| weighted_conv(n, &inits)) {
+        if let Some(o) = n.output.first().filter(|o| float.contains(*o)) {
+            marked.remove(&after_relu(o));
+            marked.remove(o);
         }
     }
     let mut same_as = BTreeMap::new();
@@ -106,7 +148,7 @@ mod tests {
         g.node("GlobalAveragePool", &["o"], &["y"], vec![]);
         g.output_f32("y", &[Dim::Fixed(1), 1.into(), 1.into(), 1.into()]);
         let graph = g.finish("t", "0", &[]).unwrap().graph.unwrap();
-        let got: Vec<(String, Option<String>)> = activations(&graph)
+        let got: Vec<(String, Option<String>)> = activations(&graph, &BTreeSet::new())
             .into_iter()
             .map(|a| (a.name, a.same_as))
             .collect();
@@ -121,5 +163,42 @@ mod tests {
             got, want,
             "a, s (ReLU follows) and y (float head) stay float"
         );
+        // b left float: its output is not quantized, though the Add reads it.
+        let names: Vec<String> = activations(&graph, &last_convs(&graph, 1).unwrap())
+            .into_iter()
+            .map(|a| a.name)
+            .collect();
+        assert_eq!(names, ["x", "r", "m", "o"]);
+    }
+
+    #[test]
+    fn a_conv_left_float_marks_nothing_and_its_producer_still_quantizes() {
+        // x -> conv a -> relu r -> conv b -> relu o -> gap -> y; b stays float
+        let mut g = GraphBuilder::new("t");
+        for w in ["wa", "wb"] {
+            g.initializer_f32(w, &[1, 1, 1, 1], &[1.0]).unwrap();
+        }
+        g.input_f32("x", &[1.into(), 1.into(), 4.into(), 4.into()]);
+        g.node("Conv", &["x", "wa"], &["a"], vec![]);
+        g.node("Relu", &["a"], &["r"], vec![]);
+        g.node("Conv", &["r", "wb"], &["b"], vec![]);
+        g.node("Relu", &["b"], &["o"], vec![]);
+        g.node("GlobalAveragePool", &["o"], &["y"], vec![]);
+        g.output_f32("y", &[Dim::Fixed(1), 1.into(), 1.into(), 1.into()]);
+        let graph = g.finish("t", "0", &[]).unwrap().graph.unwrap();
+        let float = last_convs(&graph, 1).unwrap();
+        assert_eq!(float, BTreeSet::from(["b".to_string()]));
+        let names: Vec<String> = activations(&graph, &float)
+            .into_iter()
+            .map(|a| a.name)
+            .collect();
+        assert_eq!(names, ["x", "r"], "o is b's, which stays float");
+        let all: Vec<String> = activations(&graph, &last_convs(&graph, 0).unwrap())
+            .into_iter()
+            .map(|a| a.name)
+            .collect();
+        assert_eq!(all, ["x", "r", "o"]);
+        let err = last_convs(&graph, 2).unwrap_err();
+        assert!(err.contains("has 2 convolutions"), "{err}");
     }
 }

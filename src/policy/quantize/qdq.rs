@@ -3,7 +3,7 @@
 //! Conv. The float graph is otherwise unchanged, so any ONNX runtime can run the result;
 //! ONNX Runtime fuses the groups into integer kernels.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use super::QuantizeError;
 use super::fold::prune_initializers;
@@ -92,10 +92,12 @@ fn push_qdq(
     ));
 }
 
-/// Rewrites `graph` (batch norms already folded) with `table`'s activations quantized.
+/// Rewrites `graph` (batch norms already folded) with `table`'s activations quantized. The
+/// Convs whose first output is in `float` keep their float32 weights.
 pub fn rewrite(
     graph: &GraphProto,
     table: &BTreeMap<String, QParams>,
+    float: &BTreeSet<String>,
     opts: QdqOptions,
 ) -> Result<GraphProto, QuantizeError> {
     let by_name: BTreeMap<&str, &TensorProto> = graph
@@ -117,7 +119,11 @@ pub fn rewrite(
                 *i = dq_name(i);
             }
         }
-        let weight = n.input.get(1).and_then(|w| by_name.get(w.as_str()));
+        let weight = n
+            .input
+            .get(1)
+            .and_then(|w| by_name.get(w.as_str()))
+            .filter(|_| !n.output.first().is_some_and(|o| float.contains(o)));
         if let ("Conv", Some(w), Some(x)) = (n.op_type.as_str(), weight, table.get(&n.input[0])) {
             let values = read_f32(w)?;
             let channels = w.dims.first().copied().unwrap_or(0);
