@@ -9,7 +9,7 @@ use jetpilot::control::SteeringGains;
 use jetpilot::dataset::labelled::{self, LabelMap, LabelledFrame};
 use jetpilot::policy::onnx::{self, ModelProto};
 use jetpilot::policy::quantize::calibrate::{self, Runner};
-use jetpilot::policy::quantize::{ActivationType, Prepared, QdqOptions, RangeMethod};
+use jetpilot::policy::quantize::{ActivationType, FloatConvs, Prepared, QdqOptions, RangeMethod};
 use jetpilot::policy::{ModelContract, OutputKind, Preprocessor};
 use prost::Message;
 
@@ -53,6 +53,10 @@ pub struct QuantizeArgs {
     /// ResNet-18, `layer4.1.conv2`.
     #[arg(long, default_value_t = 0, value_name = "N")]
     float_last: usize,
+    /// Leave the first N convolutions in float32, the input unquantized too. For both
+    /// networks 1 is the stem (`_conv_stem`, `conv1`).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    float_first: usize,
     /// ONNX Runtime intra-op threads (0: ONNX Runtime decides).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -132,8 +136,14 @@ pub fn main(args: QuantizeArgs) -> anyhow::Result<ExitCode> {
         anyhow::bail!("--percentile must be in (50, 100], got {}", args.percentile);
     }
     let (model, contract) = read_model(&args.input)?;
-    let prepared = Prepared::new(&model, args.float_last)
-        .with_context(|| format!("model {}", args.input.display()))?;
+    let prepared = Prepared::new(
+        &model,
+        FloatConvs {
+            first: args.float_first,
+            last: args.float_last,
+        },
+    )
+    .with_context(|| format!("model {}", args.input.display()))?;
 
     // Calibration reads the frames only, so a folder labelled for the other head serves too
     // (a JetBot xy folder for a speed_steering model, a tub for an xy one).
@@ -197,9 +207,11 @@ pub fn main(args: QuantizeArgs) -> anyhow::Result<ExitCode> {
         RangeMethod::MinMax => "min-max".to_string(),
         RangeMethod::Percentile(_) => format!("percentile {}", args.percentile),
     };
-    let float_text = match args.float_last {
-        0 => String::new(),
-        n => format!(", the last {n} convolution(s) float32"),
+    let float_text = match (args.float_first, args.float_last) {
+        (0, 0) => String::new(),
+        (0, n) => format!(", the last {n} convolution(s) float32"),
+        (n, 0) => format!(", the first {n} convolution(s) float32"),
+        (f, l) => format!(", the first {f} and the last {l} convolution(s) float32"),
     };
     let note = format!(
         "int8 QDQ: per-channel symmetric {}-bit weights, {} activations{float_text}, {method_text} ranges from {} frames of {}",

@@ -103,7 +103,7 @@ fn quantizes_keeps_the_contract_and_runs_as_integer_convolutions() {
 }
 
 #[test]
-fn the_last_convolution_can_stay_float() {
+fn the_first_or_last_convolutions_can_stay_float() {
     let dir = tempfile::tempdir().unwrap();
     let (float, data) = (
         common::write_model(dir.path(), 32, 1),
@@ -126,10 +126,29 @@ fn the_last_convolution_can_stay_float() {
         text(&info)
     );
 
-    let run = quantize(&float, &out, &data, &["--float-last", "20"]);
+    // The stem in float: the input is no longer quantized, the additions all still are.
+    let run = quantize(&float, &out, &data, &["--float-first", "1"]);
+    let t = text(&run);
+    assert!(run.status.success(), "{t}");
+    assert!(t.contains("29 activations to quantize"), "{t}");
+    assert!(
+        t.contains(
+            "runs 19 convolutions as QLinearConv (1 left in float), 8 additions as QLinearAdd"
+        ),
+        "{t}"
+    );
+
+    let run = quantize(
+        &float,
+        &out,
+        &data,
+        &["--float-first", "4", "--float-last", "16"],
+    );
     assert!(!run.status.success());
     assert!(
-        text(&run).contains("the model has 20 convolutions; leaving the last 20 in float"),
+        text(&run).contains(
+            "the model has 20 convolutions; leaving the first 4 and the last 16 in float would quantize none"
+        ),
         "{}",
         text(&run)
     );

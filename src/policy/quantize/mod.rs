@@ -26,6 +26,7 @@ use crate::policy::onnx::OnnxError;
 use crate::policy::onnx::proto::{ModelProto, StringStringEntryProto, ValueInfoProto};
 
 pub use params::{ActivationType, RangeMethod};
+pub use plan::FloatConvs;
 pub use qdq::QdqOptions;
 
 /// Metadata key describing how a model was quantized.
@@ -57,9 +58,9 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// Folds and plans `model`, its last `float_last` convolutions left in float32; an
-    /// opset below 13 (no per-channel QDQ) or a model with nothing to quantize is an error.
-    pub fn new(model: &ModelProto, float_last: usize) -> Result<Self, QuantizeError> {
+    /// Folds and plans `model`, the convolutions `float` names left in float32; an opset
+    /// below 13 (no per-channel QDQ) or a model with nothing to quantize is an error.
+    pub fn new(model: &ModelProto, float: plan::FloatConvs) -> Result<Self, QuantizeError> {
         let opset = model
             .opset_import
             .iter()
@@ -77,8 +78,7 @@ impl Prepared {
             .as_mut()
             .ok_or_else(|| QuantizeError::Unsupported("the model has no graph".into()))?;
         let folded_batch_norms = fold::fold_batch_norms(graph)?;
-        let float_convs =
-            plan::last_convs(graph, float_last).map_err(QuantizeError::Unsupported)?;
+        let float_convs = plan::float_convs(graph, float).map_err(QuantizeError::Unsupported)?;
         let plan = plan::activations(graph, &float_convs);
         if plan.is_empty() {
             return Err(QuantizeError::Unsupported(
@@ -161,7 +161,7 @@ mod tests {
 
     #[test]
     fn resnet18_folds_every_batch_norm_and_rewrites_every_conv() {
-        let p = Prepared::new(model(), 0).unwrap();
+        let p = Prepared::new(model(), FloatConvs::default()).unwrap();
         assert_eq!(p.folded_batch_norms, 20);
         // input, conv1's ReLU, the max pool (same as the ReLU), and per block: conv1's
         // ReLU, conv2's output, the block's ReLU; plus the three downsample convs.
@@ -216,8 +216,8 @@ mod tests {
 
     #[test]
     fn the_last_conv_left_float_keeps_its_float_weights() {
-        let all = Prepared::new(model(), 0).unwrap();
-        let p = Prepared::new(model(), 1).unwrap();
+        let all = Prepared::new(model(), FloatConvs::default()).unwrap();
+        let p = Prepared::new(model(), FloatConvs { first: 0, last: 1 }).unwrap();
         assert_eq!(p.float_convs.len(), 1);
         // The last conv (layer4.1.conv2) reads conv1's ReLU (still marked by conv1); its
         // output, which the block's Add reads, is no longer quantized.
@@ -245,7 +245,9 @@ mod tests {
             let t = g.initializer.iter().find(|t| &t.name == w).unwrap();
             assert_eq!(t.data_type, 1, "{w} stays float32");
         }
-        let err = Prepared::new(model(), 20).unwrap_err().to_string();
+        let err = Prepared::new(model(), FloatConvs { first: 0, last: 20 })
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("has 20 convolutions"), "{err}");
     }
 
@@ -253,7 +255,9 @@ mod tests {
     fn an_old_opset_is_refused_with_its_number() {
         let mut model = model().clone();
         model.opset_import[0].version = 11;
-        let err = Prepared::new(&model, 0).unwrap_err().to_string();
+        let err = Prepared::new(&model, FloatConvs::default())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("opset 11"), "{err}");
     }
 }

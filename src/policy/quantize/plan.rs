@@ -13,11 +13,11 @@
 //!   Runtime runs the pooling on the integers.
 //!
 //! Everything else (global pooling, the fully connected head) stays float32 and reads
-//! dequantized values, and so do the convolutions named to stay float ([`last_convs`]):
-//! they read dequantized values and their outputs are never quantized, not even for an
-//! `Add` that reads one (it then runs in float). A quantized output would let ONNX
-//! Runtime's `WeightBiasQuantization` quantize the float weights itself, between a
-//! DequantizeLinear input and a QuantizeLinear output.
+//! dequantized values, and so do the convolutions named to stay float ([`float_convs`]):
+//! they read dequantized values (or the float graph input), and their outputs are
+//! quantized only where an integer convolution reads them, not for an `Add` (which then
+//! runs in float). A quantized output after a quantized input would let ONNX Runtime's
+//! `WeightBiasQuantization` quantize the float weights itself.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -36,24 +36,38 @@ fn weighted_conv(n: &NodeProto, inits: &BTreeSet<&str>) -> bool {
     n.op_type == "Conv" && n.input.len() >= 2 && inits.contains(n.input[1].as_str())
 }
 
-/// The first outputs of the last `n` weighted convolutions in graph order (for
-/// EfficientNet-Lite0, 1 is `_conv_head`; for ResNet-18, `layer4.1.conv2`), or an error
-/// when the graph has no more than `n` of them (nothing would be left to quantize).
-pub fn last_convs(graph: &GraphProto, n: usize) -> Result<BTreeSet<String>, String> {
+/// Which convolutions stay float32, counted in graph order from each end.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FloatConvs {
+    /// The first N (for EfficientNet-Lite0 and ResNet-18, 1 is the stem, `_conv_stem` or
+    /// `conv1`: the graph input is then not quantized either).
+    pub first: usize,
+    /// The last N (for EfficientNet-Lite0, 1 is `_conv_head`; for ResNet-18,
+    /// `layer4.1.conv2`).
+    pub last: usize,
+}
+
+/// The first outputs of the convolutions `f` names, or an error when that is all of them
+/// (nothing would be left to quantize).
+pub fn float_convs(graph: &GraphProto, f: FloatConvs) -> Result<BTreeSet<String>, String> {
     let inits: BTreeSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let convs: Vec<&NodeProto> = graph
         .node
         .iter()
         .filter(|c| weighted_conv(c, &inits))
         .collect();
+    let n = f.first + f.last;
     if n >= convs.len() && n > 0 {
         return Err(format!(
-            "the model has {} convolutions; leaving the last {n} in float would quantize none",
-            convs.len()
+            "the model has {} convolutions; leaving the first {} and the last {} in float would quantize none",
+            convs.len(),
+            f.first,
+            f.last
         ));
     }
-    Ok(convs[convs.len() - n..]
+    Ok(convs[..f.first]
         .iter()
+        .chain(&convs[convs.len() - f.last..])
         .filter_map(|c| c.output.first().cloned())
         .collect())
 }
@@ -82,6 +96,15 @@ pub fn activations(graph: &GraphProto, float: &BTreeSet<String>) -> Vec<Activati
             _ => v.to_string(),
         }
     };
+    // What the float convolutions write (or the ReLU right after): only an integer
+    // convolution that reads it as its input may quantize it.
+    let float_outputs: BTreeSet<String> = graph
+        .node
+        .iter()
+        .filter(|n| weighted_conv(n, &inits))
+        .filter_map(|n| n.output.first().filter(|o| float.contains(*o)))
+        .flat_map(|o| [o.clone(), after_relu(o)])
+        .collect();
     let mut marked: BTreeSet<String> = BTreeSet::new();
     for n in &graph.node {
         match n.op_type.as_str() {
@@ -93,16 +116,15 @@ pub fn activations(graph: &GraphProto, float: &BTreeSet<String>) -> Vec<Activati
                 marked.insert(after_relu(&n.output[0]));
             }
             "Add" if n.input.len() == 2 && n.input.iter().all(|i| !inits.contains(i.as_str())) => {
-                marked.extend(n.input.iter().cloned());
+                marked.extend(
+                    n.input
+                        .iter()
+                        .filter(|i| !float_outputs.contains(*i))
+                        .cloned(),
+                );
                 marked.insert(after_relu(&n.output[0]));
             }
             _ => {}
-        }
-    }
-    for n in graph.node.iter().filter(|n| weighted_conv(n, &inits)) {
-        if let Some(o) = n.output.first().filter(|o| float.contains(*o)) {
-            marked.remove(&after_relu(o));
-            marked.remove(o);
         }
     }
     let mut same_as = BTreeMap::new();
@@ -130,6 +152,10 @@ pub fn activations(graph: &GraphProto, float: &BTreeSet<String>) -> Vec<Activati
 mod tests {
     use super::*;
     use crate::policy::onnx::graph::{Dim, GraphBuilder};
+
+    fn last(n: usize) -> FloatConvs {
+        FloatConvs { first: 0, last: n }
+    }
 
     #[test]
     fn a_residual_block_quantizes_where_integer_kernels_read_and_write() {
@@ -164,7 +190,7 @@ mod tests {
             "a, s (ReLU follows) and y (float head) stay float"
         );
         // b left float: its output is not quantized, though the Add reads it.
-        let names: Vec<String> = activations(&graph, &last_convs(&graph, 1).unwrap())
+        let names: Vec<String> = activations(&graph, &float_convs(&graph, last(1)).unwrap())
             .into_iter()
             .map(|a| a.name)
             .collect();
@@ -186,19 +212,31 @@ mod tests {
         g.node("GlobalAveragePool", &["o"], &["y"], vec![]);
         g.output_f32("y", &[Dim::Fixed(1), 1.into(), 1.into(), 1.into()]);
         let graph = g.finish("t", "0", &[]).unwrap().graph.unwrap();
-        let float = last_convs(&graph, 1).unwrap();
+        let float = float_convs(&graph, last(1)).unwrap();
         assert_eq!(float, BTreeSet::from(["b".to_string()]));
         let names: Vec<String> = activations(&graph, &float)
             .into_iter()
             .map(|a| a.name)
             .collect();
         assert_eq!(names, ["x", "r"], "o is b's, which stays float");
-        let all: Vec<String> = activations(&graph, &last_convs(&graph, 0).unwrap())
+        let all: Vec<String> =
+            activations(&graph, &float_convs(&graph, FloatConvs::default()).unwrap())
+                .into_iter()
+                .map(|a| a.name)
+                .collect();
+        assert_eq!(all, ["x", "r", "o"]);
+        let err = float_convs(&graph, last(2)).unwrap_err();
+        assert!(err.contains("has 2 convolutions"), "{err}");
+        // a left float: the graph input is no longer quantized, r still is (b reads it)
+        let first = FloatConvs { first: 1, last: 0 };
+        assert_eq!(
+            float_convs(&graph, first).unwrap(),
+            BTreeSet::from(["a".to_string()])
+        );
+        let names: Vec<String> = activations(&graph, &float_convs(&graph, first).unwrap())
             .into_iter()
             .map(|a| a.name)
             .collect();
-        assert_eq!(all, ["x", "r", "o"]);
-        let err = last_convs(&graph, 2).unwrap_err();
-        assert!(err.contains("has 2 convolutions"), "{err}");
+        assert_eq!(names, ["r", "o"]);
     }
 }
