@@ -74,7 +74,7 @@ pub fn float_convs(graph: &GraphProto, f: FloatConvs) -> Result<BTreeSet<String>
 
 /// The activations in the order their producers run (graph inputs first). The Convs whose
 /// first output is in `float` stay float32: they mark nothing, and their outputs (or the
-/// ReLU right after) are not quantized even where an `Add` reads them.
+/// ReLU right after) are quantized only where an integer Conv reads them, not for an `Add`.
 pub fn activations(graph: &GraphProto, float: &BTreeSet<String>) -> Vec<Activation> {
     let inits: BTreeSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let graph_outputs: BTreeSet<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
