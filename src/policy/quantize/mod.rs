@@ -159,6 +159,16 @@ mod tests {
         })
     }
 
+    /// `p` quantized with every measured range `[-1, 1]`, uint8 activations, 8-bit weights.
+    fn quantized(p: &Prepared) -> ModelProto {
+        let ranges = p.measured().into_iter().map(|n| (n, (-1.0, 1.0))).collect();
+        let opts = QdqOptions {
+            activations: ActivationType::U8,
+            weight_max: 127,
+        };
+        p.quantize(&ranges, opts, "test").unwrap()
+    }
+
     #[test]
     fn resnet18_folds_every_batch_norm_and_rewrites_every_conv() {
         let p = Prepared::new(model(), FloatConvs::default()).unwrap();
@@ -167,12 +177,7 @@ mod tests {
         // ReLU, conv2's output, the block's ReLU; plus the three downsample convs.
         assert_eq!(p.plan.len(), 3 + 8 * 3 + 3);
         assert_eq!(p.measured().len(), p.plan.len() - 1);
-        let ranges = p.measured().into_iter().map(|n| (n, (-1.0, 1.0))).collect();
-        let opts = QdqOptions {
-            activations: ActivationType::U8,
-            weight_max: 127,
-        };
-        let q = p.quantize(&ranges, opts, "test").unwrap();
+        let q = quantized(&p);
         let g = q.graph.as_ref().unwrap();
         let count = |op: &str| g.node.iter().filter(|n| n.op_type == op).count();
         assert_eq!(count("Conv"), 20);
@@ -222,12 +227,7 @@ mod tests {
         // The last conv (layer4.1.conv2) reads conv1's ReLU (still marked by conv1); its
         // output, which the block's Add reads, is no longer quantized.
         assert_eq!(p.plan.len(), all.plan.len() - 1);
-        let ranges = p.measured().into_iter().map(|n| (n, (-1.0, 1.0))).collect();
-        let opts = QdqOptions {
-            activations: ActivationType::U8,
-            weight_max: 127,
-        };
-        let q = p.quantize(&ranges, opts, "test").unwrap();
+        let q = quantized(&p);
         let g = q.graph.as_ref().unwrap();
         let count = |op: &str| g.node.iter().filter(|n| n.op_type == op).count();
         assert_eq!(count("DequantizeLinear"), p.plan.len() + 38);

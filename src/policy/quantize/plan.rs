@@ -157,23 +157,33 @@ mod tests {
         FloatConvs { first: 0, last: n }
     }
 
-    #[test]
-    fn a_residual_block_quantizes_where_integer_kernels_read_and_write() {
-        // x -> conv a -> relu r -> maxpool m -> conv b -> add(b, m) -> relu o -> gap -> y
+    /// Input `x` [1,1,4,4], 1x1 weights `wa` and `wb`, then `nodes` (op, inputs, output),
+    /// then `o -> GlobalAveragePool -> y`.
+    fn two_convs(nodes: &[(&str, &[&str], &str)]) -> GraphProto {
         let mut g = GraphBuilder::new("t");
         for w in ["wa", "wb"] {
             g.initializer_f32(w, &[1, 1, 1, 1], &[1.0]).unwrap();
         }
         g.input_f32("x", &[1.into(), 1.into(), 4.into(), 4.into()]);
-        g.node("Conv", &["x", "wa"], &["a"], vec![]);
-        g.node("Relu", &["a"], &["r"], vec![]);
-        g.node("MaxPool", &["r"], &["m"], vec![]);
-        g.node("Conv", &["m", "wb"], &["b"], vec![]);
-        g.node("Add", &["b", "m"], &["s"], vec![]);
-        g.node("Relu", &["s"], &["o"], vec![]);
+        for (op, inputs, output) in nodes {
+            g.node(op, inputs, &[output], vec![]);
+        }
         g.node("GlobalAveragePool", &["o"], &["y"], vec![]);
         g.output_f32("y", &[Dim::Fixed(1), 1.into(), 1.into(), 1.into()]);
-        let graph = g.finish("t", "0", &[]).unwrap().graph.unwrap();
+        g.finish("t", "0", &[]).unwrap().graph.unwrap()
+    }
+
+    #[test]
+    fn a_residual_block_quantizes_where_integer_kernels_read_and_write() {
+        // x -> conv a -> relu r -> maxpool m -> conv b -> add(b, m) -> relu o -> gap -> y
+        let graph = two_convs(&[
+            ("Conv", &["x", "wa"], "a"),
+            ("Relu", &["a"], "r"),
+            ("MaxPool", &["r"], "m"),
+            ("Conv", &["m", "wb"], "b"),
+            ("Add", &["b", "m"], "s"),
+            ("Relu", &["s"], "o"),
+        ]);
         let got: Vec<(String, Option<String>)> = activations(&graph, &BTreeSet::new())
             .into_iter()
             .map(|a| (a.name, a.same_as))
@@ -200,18 +210,12 @@ mod tests {
     #[test]
     fn a_conv_left_float_marks_nothing_and_its_producer_still_quantizes() {
         // x -> conv a -> relu r -> conv b -> relu o -> gap -> y; b stays float
-        let mut g = GraphBuilder::new("t");
-        for w in ["wa", "wb"] {
-            g.initializer_f32(w, &[1, 1, 1, 1], &[1.0]).unwrap();
-        }
-        g.input_f32("x", &[1.into(), 1.into(), 4.into(), 4.into()]);
-        g.node("Conv", &["x", "wa"], &["a"], vec![]);
-        g.node("Relu", &["a"], &["r"], vec![]);
-        g.node("Conv", &["r", "wb"], &["b"], vec![]);
-        g.node("Relu", &["b"], &["o"], vec![]);
-        g.node("GlobalAveragePool", &["o"], &["y"], vec![]);
-        g.output_f32("y", &[Dim::Fixed(1), 1.into(), 1.into(), 1.into()]);
-        let graph = g.finish("t", "0", &[]).unwrap().graph.unwrap();
+        let graph = two_convs(&[
+            ("Conv", &["x", "wa"], "a"),
+            ("Relu", &["a"], "r"),
+            ("Conv", &["r", "wb"], "b"),
+            ("Relu", &["b"], "o"),
+        ]);
         let float = float_convs(&graph, last(1)).unwrap();
         assert_eq!(float, BTreeSet::from(["b".to_string()]));
         let names: Vec<String> = activations(&graph, &float)
