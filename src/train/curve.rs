@@ -24,6 +24,8 @@ use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 
+mod legend;
+
 /// One series of a learning curve, e.g. "train loss".
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series {
@@ -766,11 +768,7 @@ impl Chart<'_> {
                 )
                 .map_err(|e| e.to_string())?;
             if self.text {
-                let name = if runs.is_empty() {
-                    format!("{} (no data)", s.name)
-                } else {
-                    s.name.clone()
-                };
+                let name = legend_name(s, runs);
                 let len = px(20.0) as i32;
                 lines
                     .label(name)
@@ -785,9 +783,10 @@ impl Chart<'_> {
                 .map_err(|e| e.to_string())?;
         }
         if self.text && !self.series.is_empty() {
+            let corner = self.legend_corner(&chart, font(13.0));
             chart
                 .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
+                .position(corner.position())
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font(font(13.0))
@@ -795,6 +794,57 @@ impl Chart<'_> {
                 .map_err(|e| e.to_string())?;
         }
         Ok(())
+    }
+
+    /// The corner for the legend: where its box, sized as plotters will size it (the
+    /// names in `font`, a 30 px sample line and 10 px margins), hides the fewest pixels
+    /// of the drawn lines.
+    fn legend_corner<X, Y>(
+        &self,
+        chart: &ChartContext<'_, BitMapBackend<'_, RGBPixel>, Cartesian2d<X, Y>>,
+        font: (&str, f64),
+    ) -> legend::Corner
+    where
+        X: Ranged<ValueType = f64>,
+        Y: Ranged<ValueType = f64>,
+    {
+        let area = chart.plotting_area();
+        let (w, h) = area.dim_in_pixel();
+        let (bx, by) = area.get_base_pixel();
+        let style = TextStyle::from(font.into_font());
+        let mut text = MultiLineText::<_, String>::new((0, 0), &style);
+        for (s, runs) in self.series.iter().zip(self.segments) {
+            text.push_line(legend_name(s, runs));
+        }
+        let (tw, th) = text.estimate_dimension().unwrap_or((0, 0));
+        let size = (tw + 30 + 2 * 10, th + 2 * 10);
+        let runs: Vec<Vec<(f64, f64)>> = self
+            .segments
+            .iter()
+            .flatten()
+            .map(|run| {
+                run.iter()
+                    .map(|p| {
+                        let (x, y) = chart.backend_coord(p);
+                        (f64::from(x - bx), f64::from(y - by))
+                    })
+                    .collect()
+            })
+            .collect();
+        let area = (
+            i32::try_from(w).unwrap_or(i32::MAX),
+            i32::try_from(h).unwrap_or(i32::MAX),
+        );
+        legend::quietest_corner(area, size, &runs)
+    }
+}
+
+/// A series' legend entry: its name, marked where it has nothing drawable.
+fn legend_name(s: &Series, runs: &[Vec<(f64, f64)>]) -> String {
+    if runs.is_empty() {
+        format!("{} (no data)", s.name)
+    } else {
+        s.name.clone()
     }
 }
 
