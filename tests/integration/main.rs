@@ -19,6 +19,7 @@ mod hil_motor_hat;
 mod hil_oled;
 mod image_install;
 mod interventions_kill;
+mod layouts_ilddpg;
 mod paper_experiment;
 mod poses;
 mod pretrained;
