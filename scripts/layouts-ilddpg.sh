@@ -15,27 +15,36 @@
 #                on the ImageNet EfficientNet-Lite0's pooled features at 224: DDPG's start;
 #   4. ddpg/     `train ddpg` on random layouts (a new road every episode), tested in the
 #                stress world every EVAL_EVERY episodes;
-#   5. RL/ and int8.onnx  60 s of the expert on random layouts as more calibration frames,
-#                and an int8 copy of best.onnx that keeps its first FLOAT_FIRST convolutions
-#                in float32 (`model quantize --float-first`);
+#   5. RL/ and int8.onnx  DEMO_SECONDS of the expert on random layouts as more calibration
+#                frames, and an int8 copy of best.onnx that keeps its first FLOAT_FIRST
+#                convolutions in float32 (`model quantize --float-first`);
 #   6. unseen/ and unseen_int8/  scripts/unseen-tracks.sh on best.onnx and on int8.onnx,
-#                as built and reversed in two parallel halves;
+#                as built and reversed in two parallel halves (with config/sim.toml and
+#                its CAMERA, JetBot's fisheye unless set, as that script does);
 #   then OUT/report.md: the tables and a line per model (tests with 0 interventions).
 #
 # Environment: SEED (`train ddpg --seed`, default 1), EPISODES (default 120; deterministic
 # in simulated time), MINUTES (a wall-clock cap, default 90: about 60 minutes for 120
 # episodes on a 2-core VM), EVAL_SECONDS (each test during training, default 120),
 # EVAL_EVERY (default 10), DEMO_SECONDS (default 60), FLOAT_FIRST (default 6; 0 quantizes
-# every convolution), QUANTIZE=0 skips step 5, SECONDS_PER_TEST (each of the ten tests,
-# default 600), TRACKS (the tests' track names, default every config/tracks/*.toml),
-# TESTS=0 skips step 6, DDPG_FLAGS (more `train ddpg` flags, last), CFG (default
-# config/sim.toml), BIN (a built jetpilot with the `train` feature: no build, so a long
-# run is not disturbed by rebuilding the checkout it runs from). Needs python3 with pip
-# once (the ImageNet weights, scripts/install-imagenet-weights.sh).
+# every convolution), QUANTIZE (1, the default, runs step 5; anything else skips it),
+# SECONDS_PER_TEST (each of the ten tests, default 600), TRACKS (the tests' track names,
+# default every config/tracks/*.toml), TESTS (1 runs step 6, anything else skips it),
+# DDPG_FLAGS (more `train ddpg` flags, last), CFG (the sim config of steps 1-5, default
+# config/sim.toml; stress.toml is its copy in OUT, so a relative path inside it, such as
+# `model.path`, would count from OUT), BIN (a built jetpilot with the `train` feature: no
+# build, so a long run is not disturbed by rebuilding the checkout it runs from). OUT, CFG
+# and BIN count from the caller's folder. Needs python3 with pip once (the ImageNet
+# weights, scripts/install-imagenet-weights.sh).
 set -euo pipefail
+# OUT, CFG and BIN as given count from the caller's folder; the defaults from the repository.
+absolute() { case $1 in /*) echo "$1" ;; *) echo "$PWD/$1" ;; esac; }
+[ -n "${1:-}" ] && OUT=$(absolute "$1")
+[ -n "${CFG:-}" ] && CFG=$(absolute "$CFG")
+case ${BIN:-} in */*) BIN=$(absolute "$BIN") ;; esac  # a bare name is looked up on PATH
 cd "$(dirname "$0")/.."
 
-OUT=${1:-.cache/layouts-ilddpg}
+OUT=${OUT:-.cache/layouts-ilddpg}
 CFG=${CFG:-config/sim.toml}
 SEED=${SEED:-1}
 EPISODES=${EPISODES:-120}
@@ -48,6 +57,18 @@ QUANTIZE=${QUANTIZE:-1}
 TESTS=${TESTS:-1}
 if [ ! -f "$CFG" ]; then
   echo "CFG: no sim config at '$CFG'" >&2
+  exit 2
+fi
+all_tracks=$(find config/tracks -name '*.toml' -exec basename {} .toml \; | sort)
+read -r -d '' -a tracks <<< "${TRACKS:-$all_tracks}" || true  # every word of every line
+for t in "${tracks[@]}"; do
+  if [ ! -f "config/tracks/$t.toml" ]; then
+    echo "TRACKS: no track '$t' (config/tracks/$t.toml)" >&2
+    exit 2
+  fi
+done
+if [ "${#tracks[@]}" = 0 ]; then
+  echo "TRACKS: no track names" >&2
   exit 2
 fi
 
@@ -64,6 +85,7 @@ logged() {
 }
 
 mkdir -p "$OUT"
+rm -f "$OUT/report.md"
 echo "== 1. the stress world: seed 303, lanes 0.07-0.10 m, corners 0.20-0.30 m"
 sed -e '/^\[sim\]/,/^\[/s/^seed = [0-9]*/seed = 303/' \
   -e '/^\[sim\.layouts\]/,/^\[/{
@@ -73,14 +95,14 @@ sed -e '/^\[sim\]/,/^\[/s/^seed = [0-9]*/seed = 303/' \
       }' "$CFG" > "$OUT/stress.toml"
 # Each setting must have landed where it belongs: the seed in [sim], the rest in
 # [sim.layouts] (a config without that table, or with other key names, is refused).
-layouts=$(sed -n '/^\[sim\.layouts\]/,/^\[/p' "$OUT/stress.toml")
-for want in 'enabled = true' 'lane_width_m = [0.07, 0.10]' 'corner_radius_m = [0.20, 0.30]'; do
-  if ! grep -qF -- "$want" <<< "$layouts"; then
-    echo "$CFG: could not set '$want' in its [sim.layouts] table" >&2
+table() { sed -n "/^\\[$1\\]/,/^\\[/p" "$OUT/stress.toml"; }
+for want in 'enabled = true' 'lane_width_m = \[0.07, 0.10\]' 'corner_radius_m = \[0.20, 0.30\]'; do
+  if ! table 'sim\.layouts' | grep -q "^$want"; then
+    echo "$CFG: could not set '${want//\\/}' in its [sim.layouts] table" >&2
     exit 1
   fi
 done
-if ! grep -q '^seed = 303' "$OUT/stress.toml"; then
+if ! table sim | grep -q '^seed = 303'; then
   echo "$CFG: could not set 'seed = 303' in its [sim] table" >&2
   exit 1
 fi
@@ -139,17 +161,21 @@ fi
 } > "$OUT/report.md"
 if [ "$TESTS" = 1 ]; then
   # Every track as built in one half, reversed in the other.
-  names=${TRACKS:-$(find config/tracks -name '*.toml' -exec basename {} .toml \; | sort)}
-  # shellcheck disable=SC2086,SC2116 # the names on one line, then a grep -E alternation
-  names=$(echo $names)
-  names=${names// /|}
+  names=$(IFS='|'; echo "${tracks[*]}")
   for m in "${models[@]}"; do
     IFS='|' read -r name model dir <<< "$m"
     echo "== 6. the unseen-track tests, $name: $model"
     rm -rf "$dir"
-    ONLY="^($names)$" scripts/unseen-tracks.sh "$model" "$dir" > "$dir.fwd.md" &
-    ONLY="^($names)_rev$" scripts/unseen-tracks.sh "$model" "$dir" > "$dir.rev.md"
-    wait "$!"
+    ONLY="^($names)$" scripts/unseen-tracks.sh "$model" "$dir" > "$dir.fwd.md" 2>&1 &
+    fwd_pid=$!
+    rc=0
+    ONLY="^($names)_rev$" scripts/unseen-tracks.sh "$model" "$dir" > "$dir.rev.md" 2>&1 || rc=$?
+    wait "$fwd_pid" || rc=$?
+    if [ "$rc" != 0 ]; then
+      echo "failed: scripts/unseen-tracks.sh on $model; the ends of its two logs:" >&2
+      tail -n 5 "$dir.fwd.md" "$dir.rev.md" >&2
+      exit 1
+    fi
     clean=$(python3 - "$dir" <<'EOF'
 import glob, json, sys
 runs = [json.load(open(f)) for f in sorted(glob.glob(sys.argv[1] + "/*.json"))]

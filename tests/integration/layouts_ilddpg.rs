@@ -12,10 +12,33 @@ fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
 
+/// The script's settings, none inherited from the caller's environment.
+const SETTINGS: [&str; 16] = [
+    "CFG",
+    "SEED",
+    "EPISODES",
+    "MINUTES",
+    "EVAL_SECONDS",
+    "EVAL_EVERY",
+    "DEMO_SECONDS",
+    "FLOAT_FIRST",
+    "QUANTIZE",
+    "TESTS",
+    "TRACKS",
+    "DDPG_FLAGS",
+    "SECONDS_PER_TEST",
+    "CAMERA",
+    "ONLY",
+    "BIN",
+];
+
 /// The script into `out` with `extra` variables in its environment.
 fn layouts_ilddpg(out: &Path, extra: &[(&str, &str)]) -> Output {
-    Command::new("bash")
-        .arg(repo("scripts/layouts-ilddpg.sh"))
+    let mut cmd = Command::new("bash");
+    for name in SETTINGS {
+        cmd.env_remove(name);
+    }
+    cmd.arg(repo("scripts/layouts-ilddpg.sh"))
         .arg(out)
         .env("BIN", env!("CARGO_BIN_EXE_jetpilot"))
         .envs(extra.iter().copied())
@@ -69,27 +92,27 @@ fn the_chain_runs_from_demonstrations_to_the_int8_copys_tests() {
     let log = log_of(&o);
     assert!(o.status.success(), "{log}");
 
-    // The selection world: the config with the stress world's seed and layouts.
-    let stress = std::fs::read_to_string(out.join("stress.toml")).unwrap();
-    for line in [
-        "seed = 303",
-        "enabled = true",
-        "lane_width_m = [0.07, 0.10]",
-        "corner_radius_m = [0.20, 0.30]",
-    ] {
-        assert!(
-            stress.lines().any(|l| l.starts_with(line)),
-            "{line}: {stress}"
-        );
-    }
-    // Only [sim.layouts] changed: the path road keeps its lane.
-    assert!(stress.contains("\n[sim.path]"), "{stress}");
-    let path_lane = stress
-        .split("\n[sim.path]")
-        .nth(1)
-        .and_then(|t| t.lines().find(|l| l.starts_with("lane_width_m")))
-        .unwrap_or_default();
-    assert!(path_lane.starts_with("lane_width_m = 0.20"), "{path_lane}");
+    // The selection world: the config with the stress world's seed and layouts, and
+    // nothing else changed (the appearance stays off, the path road keeps its lane).
+    let stress: toml::Table = std::fs::read_to_string(out.join("stress.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let mut want: toml::Table = std::fs::read_to_string(repo("config/sim.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let sim = want["sim"].as_table_mut().unwrap();
+    sim.insert("seed".into(), 303.into());
+    let layouts = sim["layouts"].as_table_mut().unwrap();
+    layouts.insert("enabled".into(), true.into());
+    layouts.insert("lane_width_m".into(), vec![0.07, 0.10].into());
+    layouts.insert("corner_radius_m".into(), vec![0.20, 0.30].into());
+    assert_eq!(stress, want);
+    assert_eq!(
+        stress["sim"]["appearance"]["enabled"].as_bool(),
+        Some(false)
+    );
 
     for file in [
         "probe/probe.onnx",
@@ -130,7 +153,7 @@ fn the_chain_runs_from_demonstrations_to_the_int8_copys_tests() {
 }
 
 #[test]
-fn a_config_without_random_layouts_is_refused_before_any_work() {
+fn bad_settings_are_refused_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("old.toml");
     let sim = std::fs::read_to_string(repo("config/sim.toml")).unwrap();
@@ -156,6 +179,14 @@ fn a_config_without_random_layouts_is_refused_before_any_work() {
         "{log}"
     );
     assert!(!out.join("demos").exists(), "{log}");
+
+    let o = layouts_ilddpg(&out, &[("TRACKS", "jetbot_mat no_such_track")]);
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(2), "{log}");
+    assert!(
+        log.contains("TRACKS: no track 'no_such_track' (config/tracks/no_such_track.toml)"),
+        "{log}"
+    );
 
     let o = layouts_ilddpg(&out, &[("CFG", "/nonexistent/sim.toml")]);
     let log = log_of(&o);
