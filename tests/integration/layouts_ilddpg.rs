@@ -188,6 +188,23 @@ fn bad_settings_are_refused_before_any_work() {
         "{log}"
     );
 
+    let o = layouts_ilddpg(Path::new("--help"), &[]);
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(0), "{log}");
+    assert!(
+        log.contains("SEED (`train ddpg --seed`, default 1)"),
+        "{log}"
+    );
+    assert!(!log.contains("set -euo"), "{log}");
+    let o = layouts_ilddpg(Path::new("--out"), &[]);
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(2), "{log}");
+    assert!(
+        log.contains("usage: scripts/layouts-ilddpg.sh [OUT]"),
+        "{log}"
+    );
+    assert!(!repo("--out").exists());
+
     let o = layouts_ilddpg(&out, &[("CFG", "/nonexistent/sim.toml")]);
     let log = log_of(&o);
     assert_eq!(o.status.code(), Some(2), "{log}");
