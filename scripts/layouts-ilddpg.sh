@@ -24,8 +24,8 @@
 #   then OUT/report.md: the tables and a line per model (tests with 0 interventions).
 #
 # Environment: SEED (`train ddpg --seed`, default 1), EPISODES (default 120; deterministic
-# in simulated time), MINUTES (a wall-clock cap, default 90: about 60 minutes for 120
-# episodes on a 2-core VM), EVAL_SECONDS (each test during training, default 120),
+# in simulated time), MINUTES (a wall-clock cap, default 90: 120 episodes took 40-60
+# minutes on a 2-core VM), EVAL_SECONDS (each test during training, default 120),
 # EVAL_EVERY (default 10), DEMO_SECONDS (default 60), FLOAT_FIRST (default 6; 0 quantizes
 # every convolution), QUANTIZE (1, the default, runs step 5; anything else skips it),
 # SECONDS_PER_TEST (each of the ten tests, default 600), TRACKS (the tests' track names,
