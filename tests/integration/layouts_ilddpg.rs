@@ -54,6 +54,14 @@ fn log_of(o: &Output) -> String {
     )
 }
 
+/// Asserts the script exited with `code` and said `text`; its output.
+fn exits_saying(o: &Output, code: i32, text: &str) -> String {
+    let log = log_of(o);
+    assert_eq!(o.status.code(), Some(code), "{log}");
+    assert!(log.contains(text), "{text}: {log}");
+    log
+}
+
 /// The report's section for one model: its heading's count, and its table rows.
 fn section<'a>(report: &'a str, model: &str) -> (&'a str, Vec<&'a str>) {
     let start = report
@@ -169,47 +177,30 @@ fn bad_settings_are_refused_before_any_work() {
             ("BIN", "/nonexistent/jetpilot"),
         ],
     );
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(1), "{log}");
-    assert!(
-        log.contains(&format!(
+    let log = exits_saying(
+        &o,
+        1,
+        &format!(
             "{}: could not set 'enabled = true' in its [sim.layouts] table",
             cfg.display()
-        )),
-        "{log}"
+        ),
     );
     assert!(!out.join("demos").exists(), "{log}");
 
     let o = layouts_ilddpg(&out, &[("TRACKS", "jetbot_mat no_such_track")]);
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(2), "{log}");
-    assert!(
-        log.contains("TRACKS: no track 'no_such_track' (config/tracks/no_such_track.toml)"),
-        "{log}"
+    exits_saying(
+        &o,
+        2,
+        "TRACKS: no track 'no_such_track' (config/tracks/no_such_track.toml)",
     );
 
     let o = layouts_ilddpg(Path::new("--help"), &[]);
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(0), "{log}");
-    assert!(
-        log.contains("SEED (`train ddpg --seed`, default 1)"),
-        "{log}"
-    );
+    let log = exits_saying(&o, 0, "SEED (`train ddpg --seed`, default 1)");
     assert!(!log.contains("set -euo"), "{log}");
     let o = layouts_ilddpg(Path::new("--out"), &[]);
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(2), "{log}");
-    assert!(
-        log.contains("usage: scripts/layouts-ilddpg.sh [OUT]"),
-        "{log}"
-    );
+    exits_saying(&o, 2, "usage: scripts/layouts-ilddpg.sh [OUT]");
     assert!(!repo("--out").exists());
 
     let o = layouts_ilddpg(&out, &[("CFG", "/nonexistent/sim.toml")]);
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(2), "{log}");
-    assert!(
-        log.contains("CFG: no sim config at '/nonexistent/sim.toml'"),
-        "{log}"
-    );
+    exits_saying(&o, 2, "CFG: no sim config at '/nonexistent/sim.toml'");
 }
