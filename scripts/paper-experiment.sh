@@ -77,15 +77,8 @@ esac
 TRACK_FILTER=${TRACK_FILTER:-.}
 runs() { [[ " $METHODS " == *" $1 "* ]]; }
 
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train
 
 if [ -n "${REUSE_IL:-}" ] && [ "$(realpath -m "$REUSE_IL")" = "$(realpath -m "$OUT")" ]; then
   echo "REUSE_IL must name another run's folder, not OUT ($OUT), which this run clears" >&2

@@ -64,15 +64,8 @@ INIT=$(cd "$(dirname "$INIT")" && pwd)/$(basename "$INIT")
 if [[ " $STARTS " = *" imagenet"* ]]; then
   scripts/install-imagenet-weights.sh > /dev/null
 fi
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train
 mkdir -p "$OUT"
 
 # Non-empty frames sorted by the uuid1 capture time in their names

@@ -109,16 +109,9 @@ fi
 if [ -z "${CONFIG:-}" ]; then
   if grep -q 'wheels/left' "$TUB/manifest.json"; then CONFIG=""; else CONFIG=config/donkeycar.toml; fi
 fi
-ORT_DYLIB_PATH=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH
 scripts/install-imagenet-weights.sh > /dev/null
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked --quiet
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train --quiet
 mkdir -p "$OUT"
 B=$(abs "$B")
 CFG=()

@@ -68,15 +68,8 @@ if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   exit 2
 fi
 
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train
 CFG=config/sim.toml
 mkdir -p "$OUT"
 

@@ -39,15 +39,9 @@ if [ -n "$REAL" ] && [ ! -d "$REAL" ]; then
   exit 2
 fi
 
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
 [ -x /usr/bin/time ] || scripts/install-build-deps.sh   # GNU time, for the peak RSS
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  cargo build --release --features train --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train
 mkdir -p "$OUT"
 
 # The training recipe's demonstrations (docs/guides/training.md): 331 frames over about 1.2 laps of the default mat, with recoveries.

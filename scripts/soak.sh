@@ -25,15 +25,8 @@ if ! [[ "$FRAMES" =~ ^[0-9]+$ ]] || [ "$FRAMES" -eq 0 ]; then
   echo "usage: scripts/soak.sh FRAMES [OUT]: FRAMES must be a positive number of frames, got '$FRAMES'" >&2
   exit 2
 fi
-ORT_DYLIB_PATH=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --locked --quiet
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --quiet
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 

@@ -23,15 +23,8 @@ if [ -z "$MODEL" ] || [ ! -f "$MODEL" ]; then
   exit 2
 fi
 
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary
 CAM=()
 if [ -n "$CAMERA" ]; then
   CAM=(--camera "$CAMERA")

@@ -56,16 +56,9 @@ case "$LEARNER" in
   il|probe|imagenet) ;;
   *) echo "zero-shot: LEARNER must be il, probe or imagenet, got '$LEARNER'" >&2; exit 2 ;;
 esac
-ORT_DYLIB_PATH=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH
 scripts/install-imagenet-weights.sh > /dev/null
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked --quiet
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train --quiet
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 REAL=$(cd "$REAL" && pwd)
