@@ -218,17 +218,7 @@ pub fn lite0_model(
     contract: &ModelContract,
     producer_version: &str,
 ) -> Result<ModelProto, OnnxError> {
-    if input_size < 32 {
-        return Err(OnnxError::Graph(format!(
-            "EfficientNet-Lite0 needs an input of at least 32x32, got {input_size}"
-        )));
-    }
-    if contract.input_size != input_size {
-        return Err(OnnxError::Graph(format!(
-            "input size {input_size} differs from the contract's {}",
-            contract.input_size
-        )));
-    }
+    super::resnet::check_input_size("EfficientNet-Lite0", input_size, contract)?;
     let num_outputs = weights.num_outputs()?;
     let mut g = GraphBuilder::new("efficientnet_lite0");
     add_checked_initializers(

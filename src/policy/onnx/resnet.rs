@@ -301,6 +301,27 @@ pub fn parameter_count(weights: &Resnet18Weights) -> u64 {
         .sum()
 }
 
+/// The input size a model builder is asked for: at least 32x32 (five stride-2 stages leave
+/// one cell) and the contract's own, so that the file and its metadata agree.
+pub(crate) fn check_input_size(
+    net: &str,
+    input_size: u32,
+    contract: &ModelContract,
+) -> Result<(), OnnxError> {
+    if input_size < 32 {
+        return Err(OnnxError::Graph(format!(
+            "{net} needs an input of at least 32x32, got {input_size}"
+        )));
+    }
+    if contract.input_size != input_size {
+        return Err(OnnxError::Graph(format!(
+            "input size {input_size} differs from the contract's {}",
+            contract.input_size
+        )));
+    }
+    Ok(())
+}
+
 /// Builds the ResNet-18 ONNX model: input `input [1,3,S,S]`, output `output [1,N]` where
 /// `S = input_size` and `N` comes from `fc.weight`. Every tensor of
 /// [`Resnet18Weights::param_shapes`] must be present with its shape (extra tensors, such as
@@ -312,17 +333,7 @@ pub fn resnet18_model(
     contract: &ModelContract,
     producer_version: &str,
 ) -> Result<ModelProto, OnnxError> {
-    if input_size < 32 {
-        return Err(OnnxError::Graph(format!(
-            "ResNet-18 needs an input of at least 32x32, got {input_size}"
-        )));
-    }
-    if contract.input_size != input_size {
-        return Err(OnnxError::Graph(format!(
-            "input size {input_size} differs from the contract's {}",
-            contract.input_size
-        )));
-    }
+    check_input_size("ResNet-18", input_size, contract)?;
     let num_outputs = weights.num_outputs()?;
     let mut g = GraphBuilder::new("resnet18");
     add_checked_initializers(
@@ -452,6 +463,29 @@ mod tests {
             input_size: size,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn an_input_below_32_or_off_the_contract_is_refused_by_name() {
+        assert!(check_input_size("ResNet-18", 32, &contract(32)).is_ok());
+        let small = check_input_size("ResNet-18", 16, &contract(16)).unwrap_err();
+        assert_eq!(
+            small.to_string(),
+            OnnxError::Graph("ResNet-18 needs an input of at least 32x32, got 16".into())
+                .to_string()
+        );
+        let off = check_input_size("EfficientNet-Lite0", 96, &contract(128)).unwrap_err();
+        assert!(
+            off.to_string()
+                .contains("input size 96 differs from the contract's 128"),
+            "{off}"
+        );
+        // The builders call it before any tensor is read.
+        let e = resnet18_model(96, seed7(), &contract(128), "t").unwrap_err();
+        assert!(
+            e.to_string().contains("differs from the contract's 128"),
+            "{e}"
+        );
     }
 
     #[test]
