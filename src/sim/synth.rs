@@ -1302,25 +1302,27 @@ mod tests {
         }
     }
 
-    #[test]
-    fn fisheye_synthesis_at_the_recorded_pose_reproduces_the_frame() {
-        let camera = jetbot_fisheye(224);
+    /// A frame rendered at a pose, synthesised again at that same pose: its PSNR against the
+    /// frame and what `synthesize` says of the match.
+    fn identity_synthesis(camera: CameraModel) -> (f64, SynthInfo) {
         let r = renderer(camera);
         let a = Pose2::new(0.9, 0.6, FRAC_PI_2 + 0.05);
         let f = frame(&r, a);
         let original = f.rgb.clone();
-        let synth = Synthesizer::new(
-            Recording {
-                camera,
-                frames: vec![f],
-            },
-            0.14,
-        )
-        .unwrap();
+        let recording = Recording {
+            camera,
+            frames: vec![f],
+        };
+        let synth = Synthesizer::new(recording, 0.14).unwrap();
         let mut out = vec![0u8; r.frame_len()];
         let info = synth.synthesize(&a, &mut out);
         let all = vec![true; (camera.width * camera.height) as usize];
-        let p = psnr(&out, &original, &all);
+        (psnr(&out, &original, &all), info)
+    }
+
+    #[test]
+    fn fisheye_synthesis_at_the_recorded_pose_reproduces_the_frame() {
+        let (p, info) = identity_synthesis(jetbot_fisheye(224));
         println!(
             "fisheye identity PSNR {p:.2} dB, coverage {}",
             info.coverage
@@ -1331,23 +1333,7 @@ mod tests {
 
     #[test]
     fn synthesis_at_the_recorded_pose_reproduces_the_frame() {
-        let camera = CameraModel::pinhole(224, 224);
-        let r = renderer(camera);
-        let a = Pose2::new(0.9, 0.6, FRAC_PI_2 + 0.05);
-        let f = frame(&r, a);
-        let original = f.rgb.clone();
-        let synth = Synthesizer::new(
-            Recording {
-                camera,
-                frames: vec![f],
-            },
-            0.14,
-        )
-        .unwrap();
-        let mut out = vec![0u8; r.frame_len()];
-        let info = synth.synthesize(&a, &mut out);
-        let all = vec![true; (camera.width * camera.height) as usize];
-        let p = psnr(&out, &original, &all);
+        let (p, info) = identity_synthesis(CameraModel::pinhole(224, 224));
         println!("identity PSNR {p:.2} dB, coverage {}", info.coverage);
         assert!(p >= 40.0, "identity PSNR {p}");
         assert_eq!(info.index, 0);
