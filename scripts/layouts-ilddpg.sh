@@ -25,7 +25,7 @@
 #
 # Environment: SEED (`train ddpg --seed`, default 1), EPISODES (default 120; deterministic
 # in simulated time), MINUTES (a wall-clock cap, default 90: 120 episodes took 40-60
-# minutes on a 2-core VM), EVAL_SECONDS (each test during training, default 120),
+# minutes on a 2-core VM, 58 in this script's run of seed 5), EVAL_SECONDS (each test during training, default 120),
 # EVAL_EVERY (default 10), DEMO_SECONDS (default 60), FLOAT_FIRST (default 6; 0 quantizes
 # every convolution), QUANTIZE (1, the default, runs step 5; anything else skips it),
 # SECONDS_PER_TEST (each of the ten tests, default 600), TRACKS (the tests' track names,
@@ -118,15 +118,8 @@ if ! table sim | grep -q '^seed = 303'; then
 fi
 
 scripts/install-imagenet-weights.sh > /dev/null
-ORT_LIB=$(scripts/install-onnxruntime.sh)
-export ORT_DYLIB_PATH="$ORT_LIB"
-if [ -n "${BIN:-}" ]; then
-  B=$BIN
-else
-  scripts/install-build-deps.sh
-  cargo build --release --features train --locked
-  B=target/release/jetpilot
-fi
+. scripts/lib/binary.sh
+jetpilot_binary --features train
 # From here on, BIN is what unseen-tracks.sh runs.
 export BIN=$B
 
