@@ -20,6 +20,7 @@ mod hil_oled;
 mod image_install;
 mod interventions_kill;
 mod layouts_ilddpg;
+mod lp_ft;
 mod paper_experiment;
 mod poses;
 mod pretrained;

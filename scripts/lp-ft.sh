@@ -1,0 +1,130 @@
+#!/usr/bin/env bash
+# LP-FT on real frames (docs/results/pretrained-backbones.md, "LP-FT"): a linear probe of
+# the frozen ImageNet EfficientNet-Lite0 (`train probe`), then a fine-tune of the whole
+# network from it (`train il --init probe.onnx`), its setting chosen without the test frames.
+#
+#   scripts/lp-ft.sh REALDATA [OUT]
+#       REALDATA: labelled JetBot frames (e.g. ../shared/realdata/jetbot_xy_carpet)
+#
+# The frames are sorted by capture time. The latest 20 % are the test frames (`jetpilot
+# score --split-by-time 0.2`); nothing is chosen on them. The earlier 80 % are split the
+# same way: their earliest 80 % fit, their latest 20 % choose.
+# 1. Selection: a probe on the selection's fitting frames; each of CANDIDATES fine-tunes
+#    from it; the probe and every fine-tune are scored on the selection's latest frames.
+# 2. Test: the candidate with the lowest selection error is run again on the whole earlier
+#    80 % (a new probe, then the fine-tune); the probe and the fine-tune are scored on the
+#    test frames.
+#
+# Env: CANDIDATES (the `train il` flags of each fine-tune, separated by ';', default
+# "--lr 1e-4;--lr 1e-5"), EPOCHS (default 10), INPUT_SIZE (default 224), SEED (default 1),
+# BIN (skip the build). Every fine-tune has --freeze-bn and --head xy, and is scored at its
+# last epoch. Writes OUT/selection.csv (candidate, px, baseline_px), OUT/test.csv (model,
+# px, baseline_px, x_corr), OUT/sel/ and OUT/test/ (the models, logs and scores). The real
+# frames are linked, not copied.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+REAL=${1:-}
+OUT=${2:-.cache/lp-ft}
+CANDIDATES=${CANDIDATES:---lr 1e-4;--lr 1e-5}
+EPOCHS=${EPOCHS:-10}
+INPUT_SIZE=${INPUT_SIZE:-224}
+SEED=${SEED:-1}
+if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
+  echo "usage: scripts/lp-ft.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
+  echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_carpet); got '${REAL}'" >&2
+  exit 2
+fi
+REAL=$(cd "$REAL" && pwd)
+scripts/install-imagenet-weights.sh > /dev/null
+. scripts/lib/binary.sh
+jetpilot_binary --features train
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+
+# Non-empty frames sorted by the uuid1 capture time in their names (as real-finetune.sh).
+find "$REAL" -name 'xy_*.jpg' -size +0 | awk -F/ '{
+  n = $NF; split(n, p, "_"); split(p[4], u, "-");
+  print substr(u[3], 2) u[2] u[1] "\t" $0 }' | sort | cut -f2 > "$OUT/by_time.txt"
+# The number of frames of N that `score --split-by-time 0.2` keeps for training.
+earlier() { echo $(($1 - ($1 * 2 + 9) / 10)); }
+# A folder DIR of links to the first N frames of by_time.txt.
+link_first() {
+  rm -rf "$2"
+  mkdir -p "$2"
+  head -n "$1" "$OUT/by_time.txt" | while read -r f; do ln -s "$f" "$2/"; done
+}
+mean() { awk -v w="$1" '$1 == w && $2 == "mean" { print $3 }' "$2"; }
+# The x correlation (labels against predictions) of `score`'s tracking line.
+xcorr() { sed -n 's/^ *tracking .*correlation (\([-+0-9.]*\),.*/\1/p' "$1"; }
+TOTAL=$(wc -l < "$OUT/by_time.txt")
+TRAIN=$(earlier "$TOTAL")
+FIT=$(earlier "$TRAIN")
+echo "real frames: $TOTAL; selection: fit on the earliest $FIT, choose on the next $((TRAIN - FIT));"
+echo "test: fit on the earliest $TRAIN, score the latest $((TOTAL - TRAIN))"
+link_first "$TRAIN" "$OUT/frames_train"
+link_first "$FIT" "$OUT/frames_fit"
+
+# failed WHAT LOG: says which step failed and the end of its log, and stops.
+failed() {
+  echo "$1 failed; the end of $2:" >&2
+  tail -n 5 "$2" >&2
+  exit 1
+}
+# probe FRAMES DIR: the probe of FRAMES into DIR/probe.
+probe() {
+  "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --data "$1" \
+    -o "$2/probe" > "$2/probe.log" 2>&1 || failed "train probe" "$2/probe.log"
+}
+# finetune ARGS FRAMES DIR NAME: the fine-tune from DIR/probe into DIR/NAME.
+finetune() {
+  # shellcheck disable=SC2086 # ARGS is a list of words
+  "$B" train il --init "$3/probe/probe.onnx" --input-size "$INPUT_SIZE" --head xy \
+    --freeze-bn true --epochs "$EPOCHS" --seed "$SEED" $1 --data "$2" --out "$3/$4" \
+    > "$3/$4.log" 2>&1 || failed "train il $1" "$3/$4.log"
+}
+# scored MODEL DATA OUTFILE: `score`'s text for MODEL on DATA's latest 20 %.
+scored() {
+  "$B" score --model "$1" --data "$2" --split-by-time 0.2 --out "${3%.txt}" > "$3" 2>&1 \
+    || failed "score $1" "$3"
+}
+
+echo "== selection"
+S="$OUT/sel"
+mkdir -p "$S"
+probe "$OUT/frames_fit" "$S"
+scored "$S/probe/probe.onnx" "$OUT/frames_train" "$S/probe_score.txt"
+echo "candidate,px,baseline_px" > "$OUT/selection.csv"
+echo "\"probe alone\",$(mean model "$S/probe_score.txt"),$(mean baseline "$S/probe_score.txt")" \
+  | tee -a "$OUT/selection.csv"
+IFS=';' read -r -a candidates <<< "$CANDIDATES"
+best=
+best_px=
+for i in "${!candidates[@]}"; do
+  args=${candidates[$i]}
+  finetune "$args" "$OUT/frames_fit" "$S" "ft$i"
+  scored "$S/ft$i/last.onnx" "$OUT/frames_train" "$S/ft${i}_score.txt"
+  px=$(mean model "$S/ft${i}_score.txt")
+  echo "\"fine-tune $args\",$px,$(mean baseline "$S/ft${i}_score.txt")" \
+    | tee -a "$OUT/selection.csv"
+  if [ -z "$best_px" ] || awk -v a="$px" -v b="$best_px" 'BEGIN { exit !(a < b) }'; then
+    best=$args
+    best_px=$px
+  fi
+done
+echo "chosen: fine-tune $best ($best_px px on the selection)"
+
+echo "== test"
+T="$OUT/test"
+mkdir -p "$T"
+probe "$OUT/frames_train" "$T"
+finetune "$best" "$OUT/frames_train" "$T" ft
+echo "model,px,baseline_px,x_corr" > "$OUT/test.csv"
+for m in "probe alone:$T/probe/probe.onnx" "fine-tune $best:$T/ft/last.onnx"; do
+  name=${m%%:*}
+  scored "${m#*:}" "$REAL" "$T/${name// /_}_score.txt"
+  f="$T/${name// /_}_score.txt"
+  echo "\"$name\",$(mean model "$f"),$(mean baseline "$f"),$(xcorr "$f")" \
+    | tee -a "$OUT/test.csv"
+done
+echo "wrote $OUT/selection.csv and $OUT/test.csv"

@@ -1,0 +1,218 @@
+//! `scripts/lp-ft.sh` end to end (issue 48 5a): a linear probe of the ImageNet
+//! EfficientNet-Lite0, then fine-tunes from it, one chosen on the selection split and run
+//! again for the test frames. On 40 simulator frames in JetBot's xy layout at 64x64, one
+//! epoch each: `--lr 0` keeps the probe, so its selection row must equal the probe's; the
+//! split sizes must be the ones `score --split-by-time 0.2` uses twice over. Needs the
+//! `train` feature, ONNX Runtime and python3 with pip (the script installs the weights).
+#![cfg(feature = "train")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use jetpilot::dataset::jetbot_xy;
+
+fn repo(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+/// 40 scattered views of the default track, renamed as JetBot's notebook names its
+/// samples (uuid1, a second apart) so that capture time orders them.
+fn stand_in_realdata(dir: &Path) -> PathBuf {
+    let out = dir.join("real");
+    let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args([
+            "-q",
+            "sim",
+            "--camera",
+            "jetbot",
+            "--randomise",
+            "--scatter",
+            "40",
+        ])
+        .arg("--config")
+        .arg(repo("config/sim.toml"))
+        .arg("--record-xy")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut names: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 40, "{names:?}");
+    for (i, name) in names.iter().enumerate() {
+        let (px, py) = jetbot_xy::parse_file_name(name).unwrap();
+        let taken = (1_796_342_400 + i as u64) * 10_000_000;
+        let uuid = jetbot_xy::uuid1(taken, 0x1234, [0x01, 0x23, 0x45, 0x67, 0x89, 0xab]);
+        std::fs::rename(
+            out.join(name),
+            out.join(jetbot_xy::file_name(px, py, &uuid)),
+        )
+        .unwrap();
+    }
+    out
+}
+
+fn lp_ft(real: &Path, out: &Path, candidates: &str) -> Output {
+    Command::new("bash")
+        .arg(repo("scripts/lp-ft.sh"))
+        .arg(real)
+        .arg(out)
+        .env("BIN", env!("CARGO_BIN_EXE_jetpilot"))
+        .env("CANDIDATES", candidates)
+        .env("EPOCHS", "1")
+        .env("INPUT_SIZE", "64")
+        .env_remove("SEED")
+        .output()
+        .unwrap()
+}
+
+fn log_of(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+/// The CSV's rows after its header, each split at its commas (names are quoted, without
+/// commas).
+fn rows(path: &Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            l.split(',')
+                .map(|c| c.trim_matches('"').to_string())
+                .collect()
+        })
+        .collect()
+}
+
+fn px(cell: &str) -> f64 {
+    cell.parse()
+        .unwrap_or_else(|_| panic!("not a number: {cell:?}"))
+}
+
+#[test]
+fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let real = stand_in_realdata(dir.path());
+    let out = dir.path().join("out");
+    let o = lp_ft(
+        &real,
+        &out,
+        "--lr 0 --batch 8;--lr 1e-3 --batch 8 --no-augment",
+    );
+    let log = log_of(&o);
+    assert!(o.status.success(), "{log}");
+
+    // 40 frames: the latest 8 are the test; of the earlier 32, 25 fit and 7 choose.
+    assert!(
+        log.contains("selection: fit on the earliest 25, choose on the next 7"),
+        "{log}"
+    );
+    assert!(
+        log.contains("test: fit on the earliest 32, score the latest 8"),
+        "{log}"
+    );
+    let probe_log = |d: &str| std::fs::read_to_string(out.join(d).join("probe.log")).unwrap();
+    assert!(
+        probe_log("sel").contains("of 25 frames"),
+        "{}",
+        probe_log("sel")
+    );
+    assert!(
+        probe_log("test").contains("of 32 frames"),
+        "{}",
+        probe_log("test")
+    );
+
+    // The probe alone and both candidates on the selection's latest 7 frames; `--lr 0`
+    // leaves the probe's weights as they were.
+    let sel = rows(&out.join("selection.csv"));
+    let names: Vec<&str> = sel.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "probe alone",
+            "fine-tune --lr 0 --batch 8",
+            "fine-tune --lr 1e-3 --batch 8 --no-augment"
+        ],
+        "{sel:?}"
+    );
+    assert!(
+        (px(&sel[0][1]) - px(&sel[1][1])).abs() <= 0.11,
+        "a fine-tune at --lr 0 is the probe: {sel:?}"
+    );
+    for r in &sel {
+        assert_eq!(r[2], sel[0][2], "one baseline for every row: {sel:?}");
+    }
+    let chosen = if px(&sel[1][1]) <= px(&sel[2][1]) {
+        1
+    } else {
+        2
+    };
+    assert!(
+        log.contains(&format!(
+            "chosen: {} ({} px",
+            sel[chosen][0], sel[chosen][1]
+        )),
+        "{sel:?}\n{log}"
+    );
+
+    // The test: a new probe and the chosen fine-tune, scored with the x correlation.
+    let test = rows(&out.join("test.csv"));
+    assert_eq!(test.len(), 2, "{test:?}");
+    assert_eq!(test[0][0], "probe alone");
+    assert_eq!(test[1][0], sel[chosen][0]);
+    for r in &test {
+        assert!(px(&r[1]) > 0.0 && px(&r[2]) > 0.0, "{r:?}");
+    }
+    // `score` writes "-" for a constant answer's correlation (a probe may fall back to
+    // the mean label on 32 frames, and `--lr 0` keeps it).
+    for r in &test {
+        assert!(r[3] == "-" || (-1.0..=1.0).contains(&px(&r[3])), "{test:?}");
+    }
+    if chosen == 1 {
+        assert!(
+            (px(&test[0][1]) - px(&test[1][1])).abs() <= 0.11,
+            "a fine-tune at --lr 0 is the probe: {test:?}"
+        );
+    }
+    assert!(out.join("test/ft/last.onnx").is_file());
+}
+
+#[test]
+fn a_candidate_that_fails_names_its_step_and_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let real = stand_in_realdata(dir.path());
+    let out = dir.path().join("out");
+    let o = lp_ft(&real, &out, "--no-such-flag");
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("train il --no-such-flag failed; the end of") && log.contains("sel/ft0.log"),
+        "{log}"
+    );
+    assert!(!out.join("test.csv").exists(), "{log}");
+}
+
+#[test]
+fn a_missing_folder_is_refused_with_the_usage() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = lp_ft(
+        &dir.path().join("nowhere"),
+        &dir.path().join("out"),
+        "--lr 0",
+    );
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(2), "{log}");
+    assert!(
+        log.contains("usage: scripts/lp-ft.sh REALDATA [OUT]"),
+        "{log}"
+    );
+    assert!(log.contains("nowhere"), "{log}");
+}
