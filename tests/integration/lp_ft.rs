@@ -9,49 +9,16 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use jetpilot::dataset::jetbot_xy;
+use crate::common::scattered_xy_views;
 
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
 
-/// 40 scattered views of the default track, renamed as JetBot's notebook names its
-/// samples (uuid1, a second apart) so that capture time orders them.
+/// 40 scattered views of the default track, a second apart (see the helper).
 fn stand_in_realdata(dir: &Path) -> PathBuf {
     let out = dir.join("real");
-    let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
-        .args([
-            "-q",
-            "sim",
-            "--camera",
-            "jetbot",
-            "--randomise",
-            "--scatter",
-            "40",
-        ])
-        .arg("--config")
-        .arg(repo("config/sim.toml"))
-        .arg("--record-xy")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let mut names: Vec<_> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
-    names.sort();
-    assert_eq!(names.len(), 40, "{names:?}");
-    for (i, name) in names.iter().enumerate() {
-        let (px, py) = jetbot_xy::parse_file_name(name).unwrap();
-        let taken = (1_796_342_400 + i as u64) * 10_000_000;
-        let uuid = jetbot_xy::uuid1(taken, 0x1234, [0x01, 0x23, 0x45, 0x67, 0x89, 0xab]);
-        std::fs::rename(
-            out.join(name),
-            out.join(jetbot_xy::file_name(px, py, &uuid)),
-        )
-        .unwrap();
-    }
+    scattered_xy_views(&repo("config/sim.toml"), 40, &out);
     out
 }
 

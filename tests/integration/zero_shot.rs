@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use jetpilot::dataset::jetbot_xy;
+use crate::common::scattered_xy_views;
 
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -33,37 +33,7 @@ fn stand_in_realdata(dir: &Path) -> PathBuf {
         let seeded = sim.replacen("\nseed = 0\n", &format!("\nseed = {seed}\n"), 1);
         assert_ne!(sim, seeded, "config/sim.toml changed shape: no `seed = 0`");
         std::fs::write(&cfg, seeded).unwrap();
-        let out = real.join(set);
-        let o = jetpilot(&[
-            "-q",
-            "sim",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--camera",
-            "jetbot",
-            "--randomise",
-            "--scatter",
-            "10",
-            "--record-xy",
-            out.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let mut names: Vec<_> = std::fs::read_dir(&out)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-            .collect();
-        names.sort();
-        assert_eq!(names.len(), 10, "{names:?}");
-        for (i, name) in names.iter().enumerate() {
-            let (px, py) = jetbot_xy::parse_file_name(name).unwrap();
-            let taken = (1_796_342_400 + i as u64) * 10_000_000;
-            let uuid = jetbot_xy::uuid1(taken, 0x1234, [0x01, 0x23, 0x45, 0x67, 0x89, 0xab]);
-            std::fs::rename(
-                out.join(name),
-                out.join(jetbot_xy::file_name(px, py, &uuid)),
-            )
-            .unwrap();
-        }
+        scattered_xy_views(&cfg, 10, &real.join(set));
     }
     real
 }

@@ -11,6 +11,7 @@ use std::time::Duration;
 use jetpilot::camera::synthetic::{render_road, sample_view};
 use jetpilot::camera::{CameraError, Frame, FrameSource};
 use jetpilot::clock::Clock;
+use jetpilot::dataset::jetbot_xy;
 use jetpilot::policy::onnx::{self, Resnet18Weights};
 use jetpilot::policy::ort_policy::OrtOptions;
 use jetpilot::policy::{ModelContract, OrtPolicy, Policy, PolicyError};
@@ -44,6 +45,46 @@ pub fn write_frames(dir: &Path, n: usize) -> PathBuf {
         .unwrap();
     }
     out
+}
+
+/// `n` scattered simulator views of `config`'s track in JetBot's xy layout in `out`,
+/// renamed as JetBot's notebook names its samples (uuid1, a second apart, in the order of
+/// the simulator's names), so that `score --split-by-time` and the scripts can order them
+/// by capture time.
+pub fn scattered_xy_views(config: &Path, n: usize, out: &Path) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args([
+            "-q",
+            "sim",
+            "--camera",
+            "jetbot",
+            "--randomise",
+            "--scatter",
+        ])
+        .arg(n.to_string())
+        .arg("--config")
+        .arg(config)
+        .arg("--record-xy")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut names: Vec<_> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), n, "{names:?}");
+    for (i, name) in names.iter().enumerate() {
+        let (px, py) = jetbot_xy::parse_file_name(name).unwrap();
+        let taken = (1_796_342_400 + i as u64) * 10_000_000;
+        let uuid = jetbot_xy::uuid1(taken, 0x1234, [0x01, 0x23, 0x45, 0x67, 0x89, 0xab]);
+        std::fs::rename(
+            out.join(name),
+            out.join(jetbot_xy::file_name(px, py, &uuid)),
+        )
+        .unwrap();
+    }
 }
 
 /// What a scripted policy does on its n-th call.
