@@ -8,6 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use crate::common::log_of;
+
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
@@ -44,14 +46,6 @@ fn layouts_ilddpg(out: &Path, extra: &[(&str, &str)]) -> Output {
         .envs(extra.iter().copied())
         .output()
         .unwrap()
-}
-
-fn log_of(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// Asserts the script exited with `code` and said `text`; its output.

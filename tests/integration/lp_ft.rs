@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use crate::common::scattered_xy_views;
+use crate::common::{log_of, scattered_xy_views};
 
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -34,14 +34,6 @@ fn lp_ft(real: &Path, out: &Path, candidates: &str) -> Output {
         .env_remove("SEED")
         .output()
         .unwrap()
-}
-
-fn log_of(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// The CSV's rows after its header, each split at its commas (names are quoted, without

@@ -47,6 +47,15 @@ pub fn write_frames(dir: &Path, n: usize) -> PathBuf {
     out
 }
 
+/// A finished command's stdout then stderr, as one text for assertions.
+pub fn log_of(o: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
 /// `n` scattered simulator views of `config`'s track in JetBot's xy layout in `out`,
 /// renamed as JetBot's notebook names its samples (uuid1, a second apart, in the order of
 /// the simulator's names), so that `score --split-by-time` and the scripts can order them
