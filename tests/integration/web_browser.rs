@@ -546,8 +546,11 @@ async fn on_a_phone_a_tap_on_the_video_saves_the_frame_shown_as_a_jetbot_xy_samp
              v.addEventListener('error', () => {
                const w = v.naturalWidth;
                for (let i = 0; i < 2; i++) {
+                 // Whole CSS pixels, as a browser may truncate a synthetic click's
+                 // fractional coordinates (half a picture pixel is more than 0.5).
                  v.dispatchEvent(new MouseEvent('click', { bubbles: true,
-                   clientX: r.left + r.width / 2 + half, clientY: r.top + r.height / 2 + half }));
+                   clientX: Math.round(r.left + r.width / 2 + half),
+                   clientY: Math.round(r.top + r.height / 2 + half) }));
                }
                done(w);
              }, { once: true });
