@@ -38,23 +38,12 @@ fi
 REAL=$(cd "$REAL" && pwd)
 scripts/install-imagenet-weights.sh > /dev/null
 . scripts/lib/binary.sh
+. scripts/lib/frames.sh
 jetpilot_binary --features train
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 
-# Non-empty frames sorted by the uuid1 capture time in their names (as real-finetune.sh).
-find "$REAL" -name 'xy_*.jpg' -size +0 | awk -F/ '{
-  n = $NF; split(n, p, "_"); split(p[4], u, "-");
-  print substr(u[3], 2) u[2] u[1] "\t" $0 }' | sort | cut -f2 > "$OUT/by_time.txt"
-# The number of frames of N that `score --split-by-time 0.2` keeps for training.
-earlier() { echo $(($1 - ($1 * 2 + 9) / 10)); }
-# A folder DIR of links to the first N frames of by_time.txt.
-link_first() {
-  rm -rf "$2"
-  mkdir -p "$2"
-  head -n "$1" "$OUT/by_time.txt" | while read -r f; do ln -s "$f" "$2/"; done
-}
-mean() { awk -v w="$1" '$1 == w && $2 == "mean" { print $3 }' "$2"; }
+frames_by_time "$REAL" "$OUT/by_time.txt"
 # The x correlation (labels against predictions) of `score`'s tracking line.
 xcorr() { sed -n 's/^ *tracking .*correlation (\([-+0-9.]*\),.*/\1/p' "$1"; }
 TOTAL=$(wc -l < "$OUT/by_time.txt")
@@ -62,8 +51,8 @@ TRAIN=$(earlier "$TOTAL")
 FIT=$(earlier "$TRAIN")
 echo "real frames: $TOTAL; selection: fit on the earliest $FIT, choose on the next $((TRAIN - FIT));"
 echo "test: fit on the earliest $TRAIN, score the latest $((TOTAL - TRAIN))"
-link_first "$TRAIN" "$OUT/frames_train"
-link_first "$FIT" "$OUT/frames_fit"
+link_first "$TRAIN" "$OUT/by_time.txt" "$OUT/frames_train"
+link_first "$FIT" "$OUT/by_time.txt" "$OUT/frames_fit"
 
 # failed WHAT LOG: says which step failed and the end of its log, and stops.
 failed() {

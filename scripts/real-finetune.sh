@@ -65,30 +65,21 @@ if [[ " $STARTS " = *" imagenet"* ]]; then
   scripts/install-imagenet-weights.sh > /dev/null
 fi
 . scripts/lib/binary.sh
+. scripts/lib/frames.sh
 jetpilot_binary --features train
 mkdir -p "$OUT"
 
-# Non-empty frames sorted by the uuid1 capture time in their names
-# (xy_XXX_YYY_<time_low>-<time_mid>-<version+time_hi>-...): time_hi, time_mid, time_low.
-find "$REAL" -name 'xy_*.jpg' -size +0 | awk -F/ '{
-  n = $NF; split(n, p, "_"); split(p[4], u, "-");
-  print substr(u[3], 2) u[2] u[1] "\t" $0 }' | sort | cut -f2 > "$OUT/by_time.txt"
+frames_by_time "$REAL" "$OUT/by_time.txt"
 TOTAL=$(wc -l < "$OUT/by_time.txt")
-TRAIN=$((TOTAL - (TOTAL * 2 + 9) / 10))   # score --split-by-time 0.2 keeps the latest ~20 %
+TRAIN=$(earlier "$TOTAL")
 echo "real frames: $TOTAL, the earliest $TRAIN to train on, the rest scored"
 
 echo "frames,start,seed,last_px,best_px,baseline_px,epochs" > "$OUT/finetune.csv"
 read -r -a seeds <<< "$SEEDS"
-# The mean error of `score`'s "model" or "baseline" line in a score.txt.
-mean() { awk -v w="$1" '$1 == w && $2 == "mean" { print $3 }' "$2"; }
 for n in $FRAMES; do
   [ "$n" = all ] && n=$TRAIN
   d="$OUT/frames_$n"
-  rm -rf "$d"
-  mkdir -p "$d"
-  # N frames evenly spread over the training part.
-  awk -v n="$n" -v t="$TRAIN" 'NR <= t && (NR - 1) % (t / n) < 1 && c < n { print; c++ }' \
-    "$OUT/by_time.txt" | while read -r f; do ln -s "$f" "$d/"; done
+  link_spread "$n" "$TRAIN" "$OUT/by_time.txt" "$d"
   got=$(find "$d" -name '*.jpg' | wc -l)
   epochs=$(( IMAGES / got ))
   [ "$epochs" -lt 10 ] && epochs=10

@@ -68,9 +68,9 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
     let log = log_of(&o);
     assert!(o.status.success(), "{log}");
 
-    // 40 frames: the latest 8 are the test; of the earlier 32, 25 fit and 7 choose.
+    // 40 frames: the latest 8 are the test; of the earlier 32, 26 fit and 6 choose.
     assert!(
-        log.contains("selection: fit on the earliest 25, choose on the next 7"),
+        log.contains("selection: fit on the earliest 26, choose on the next 6"),
         "{log}"
     );
     assert!(
@@ -79,7 +79,7 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
     );
     let probe_log = |d: &str| std::fs::read_to_string(out.join(d).join("probe.log")).unwrap();
     assert!(
-        probe_log("sel").contains("of 25 frames"),
+        probe_log("sel").contains("of 26 frames"),
         "{}",
         probe_log("sel")
     );
@@ -88,8 +88,14 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
         "{}",
         probe_log("test")
     );
+    // `score` itself splits the selection's 32 frames the same way.
+    let scored = std::fs::read_to_string(out.join("sel").join("probe_score.txt")).unwrap();
+    assert!(
+        scored.contains("the latest 6 frames are scored, the earlier 26"),
+        "{scored}"
+    );
 
-    // The probe alone and both candidates on the selection's latest 7 frames; `--lr 0`
+    // The probe alone and both candidates on the selection's latest 6 frames; `--lr 0`
     // leaves the probe's weights as they were.
     let sel = rows(&out.join("selection.csv"));
     let names: Vec<&str> = sel.iter().map(|r| r[0].as_str()).collect();

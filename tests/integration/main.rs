@@ -14,6 +14,7 @@ mod cli;
 mod configs;
 mod daemon;
 mod dataset;
+mod frames_lib;
 mod hil_hbridge;
 mod hil_motor_hat;
 mod hil_oled;
