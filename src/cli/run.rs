@@ -81,7 +81,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let model = args.model.clone().unwrap_or_else(|| cfg.model.path.clone());
     drive_with(
         &cfg,
-        &args.config,
+        Some(&args.config),
         Box::new(policy),
         Some(&model),
         source,
@@ -111,7 +111,7 @@ pub fn record(args: RecordArgs) -> anyhow::Result<ExitCode> {
     let source = setup::open_source(&cfg, clock.clone())?;
     drive_with(
         &cfg,
-        &args.config,
+        Some(&args.config),
         policy,
         args.model.as_deref(),
         source,
@@ -224,11 +224,12 @@ pub(super) enum Start {
 }
 
 /// The daemon with the config's human side (gamepad, web page, panel); `motors` `None`
-/// opens the config's motor driver.
+/// opens the config's motor driver. `config_path`: the file the web page's "save to
+/// config" rewrites (`None`, a built-in config: the page cannot save).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn drive_with(
     cfg: &Config,
-    config_path: &Path,
+    config_path: Option<&Path>,
     policy: Box<dyn Policy + Send>,
     model: Option<&Path>,
     source: Box<dyn jetpilot::camera::FrameSource>,
@@ -297,7 +298,7 @@ pub(super) fn drive_with(
                 live: live_rx,
                 remote: remote_tx,
             };
-            let config_path = std::fs::canonicalize(config_path).ok();
+            let config_path = config_path.and_then(|p| std::fs::canonicalize(p).ok());
             Some(WebServer::start(&cfg.web, config_path, output, links).await?)
         } else {
             drop(remote_tx);

@@ -83,9 +83,10 @@ impl WorldArgs {
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
     /// Config file: `[sim]` plus the robot's usual sections (the motor layout decides how the
-    /// virtual HAT's channels reach the wheels). See config/sim.toml.
+    /// virtual HAT's channels reach the wheels). Default: the built-in config/sim.toml, which
+    /// names no model (give --model).
     #[arg(short, long, value_name = "FILE")]
-    config: PathBuf,
+    config: Option<PathBuf>,
     /// Model to drive with (default: the config's `model.path`).
     #[arg(short, long, value_name = "FILE", conflicts_with = "expert")]
     model: Option<PathBuf>,
@@ -166,9 +167,10 @@ pub struct SimArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
-    /// Config file with a `[sim]` section (see config/sim.toml).
+    /// Config file with a `[sim]` section. Default: the built-in config/sim.toml, which names
+    /// no model (give --model).
     #[arg(short, long, value_name = "FILE")]
-    config: PathBuf,
+    config: Option<PathBuf>,
     /// Model to evaluate (default: the config's `model.path`).
     #[arg(short, long, value_name = "FILE", conflicts_with = "expert")]
     model: Option<PathBuf>,
@@ -190,7 +192,7 @@ pub struct EvalArgs {
     /// apply to it). The car is put at 48 recorded poses, shifted 5 cm and turned up to 28
     /// degrees, in both, and the model's outputs on the two views are compared; 1 for
     /// "corrections kept" means the replay shows the model what the world would.
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["expert", "seconds"])]
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["expert", "seconds"], requires = "config")]
     compare_render: Option<PathBuf>,
     #[command(flatten)]
     road: WorldArgs,
@@ -425,8 +427,29 @@ fn draw_trace(
     Ok(())
 }
 
+/// The built-in simulator config, config/sim.toml, for `sim` and `eval` without --config.
+const BUILT_IN_SIM_CONFIG: &str = include_str!("../../config/sim.toml");
+
+/// The config of `--config FILE`, else the built-in config/sim.toml. The built-in one's
+/// `model.path` points into this repository's .cache, so it is cleared and a run that
+/// needs a model (`has_model` false: no --model, no --expert, no --scatter) is refused.
+fn sim_config(path: Option<&Path>, has_model: bool) -> anyhow::Result<Config> {
+    if let Some(p) = path {
+        return Ok(Config::load(p)?);
+    }
+    if !has_model {
+        anyhow::bail!(
+            "no model to drive with: give --model FILE (or --expert), or --config FILE whose model.path names one; without --config the built-in config/sim.toml is used, and it names none"
+        );
+    }
+    let mut cfg = Config::parse(BUILT_IN_SIM_CONFIG, "the built-in config/sim.toml")?;
+    cfg.model.path = PathBuf::new();
+    Ok(cfg)
+}
+
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
-    let mut cfg = Config::load(&args.config)?;
+    let has_model = args.model.is_some() || args.expert || args.scatter.is_some();
+    let mut cfg = sim_config(args.config.as_deref(), has_model)?;
     args.road.apply(&mut cfg);
     if let Some(s) = args.swerve_every {
         cfg.sim.expert.swerve_every_s = s;
@@ -435,7 +458,7 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
         let cfg = super::run::with_web(cfg, args.web.as_deref())?;
         return realtime(
             &cfg,
-            &args.config,
+            args.config.as_deref(),
             args.model.as_deref(),
             args.seconds,
             args.png.as_deref(),
@@ -614,9 +637,9 @@ fn mark(rgb: &mut [u8], w: u32, h: u32, px: u32, py: u32) {
 }
 
 pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
-    if let Some(world) = &args.compare_render {
+    if let (Some(world), Some(config)) = (&args.compare_render, &args.config) {
         return super::replay_check::compare(
-            &args.config,
+            config,
             world,
             &args.road,
             args.model.as_deref(),
@@ -624,7 +647,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
             args.png.as_deref(),
         );
     }
-    let mut cfg = Config::load(&args.config)?;
+    let mut cfg = sim_config(args.config.as_deref(), args.model.is_some() || args.expert)?;
     args.road.apply(&mut cfg);
     let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);
     let (rig, driven) = drive(
@@ -650,7 +673,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
 /// page when the config (or --web) turns it on.
 fn realtime(
     cfg: &Config,
-    config_path: &Path,
+    config_path: Option<&Path>,
     model: Option<&Path>,
     seconds: f64,
     png: Option<&Path>,

@@ -296,6 +296,70 @@ fn eval_reports_the_protocol_numbers_as_json() {
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
 }
 
+/// `sim` and `eval` without --config use the built-in config/sim.toml: the same numbers
+/// and the same scattered frames as with `--config config/sim.toml`; a drive that needs a
+/// model is refused, naming --model, since the built-in config names none.
+#[test]
+fn without_a_config_sim_and_eval_use_the_built_in_sim_toml() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim.toml");
+    let jetpilot = |args: &[&str], config: bool| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_jetpilot"));
+        c.arg("-q").args(args).current_dir(dir.path());
+        if config {
+            c.arg("--config").arg(&file);
+        }
+        c.output().unwrap()
+    };
+    // The expert's eval: every number but the wall-clock ones.
+    let eval = |name: &str, config: bool| {
+        let json = format!("{name}.json");
+        let o = jetpilot(
+            &["eval", "--expert", "--seconds", "3", "--json", &json],
+            config,
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join(json)).unwrap()).unwrap();
+        for wall in ["wall_seconds", "realtime_factor", "wall_share"] {
+            v.as_object_mut().unwrap().remove(wall);
+        }
+        v
+    };
+    let built_in = eval("built_in", false);
+    assert_eq!(built_in["control_steps"], 90);
+    assert_eq!(built_in, eval("file", true));
+
+    // Scattered frames: the same names and bytes.
+    let scatter = |name: &str, config: bool| {
+        let o = jetpilot(&["sim", "--scatter", "3", "--record-xy", name], config);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir.path().join(name))
+            .unwrap()
+            .map(|e| {
+                let e = e.unwrap();
+                (
+                    e.file_name().to_string_lossy().to_string(),
+                    std::fs::read(e.path()).unwrap(),
+                )
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    let frames = scatter("built_in", false);
+    assert_eq!(frames.len(), 3);
+    assert_eq!(frames, scatter("file", true));
+
+    let o = jetpilot(&["sim", "--seconds", "1"], false);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("give --model FILE") && err.contains("built-in config/sim.toml"),
+        "{err}"
+    );
+}
+
 #[test]
 fn jetbot_camera_replays_and_draws_sim_beside_real_frames() {
     let dir = tempfile::tempdir().unwrap();
