@@ -65,7 +65,8 @@ pub struct IlArgs {
     #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=4096))]
     batch: u64,
     /// Adam learning rate (default 1e-3; 1e-4 for `--init imagenet` or a .pth, the
-    /// pretrained starts' recipe).
+    /// pretrained starts' recipe). From a `train probe` model give a low rate, e.g. 1e-5:
+    /// 1e-3 throws its fitted head away.
     #[arg(long)]
     lr: Option<f64>,
     /// Share of the demonstrations held out to pick the best epoch.
@@ -219,6 +220,12 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
             freeze_bn = opts.freeze_bn,
             lr = opts.lr,
             "a pretrained start: its fine-tuning recipe (--freeze-bn and --lr override)"
+        );
+    }
+    if start.contract.is_some() && args.lr.is_none() {
+        tracing::warn!(
+            lr = opts.lr,
+            "an ONNX start keeps its output layer, and --lr defaults to 1e-3: that suits a model `train il` made, but throws away the head of a `train probe` model (scripts/lp-ft.sh chose 1e-5 on the carpet, 1e-4 on the mat); give --lr to choose"
         );
     }
     opts.backbone_lr = args.backbone_lr;

@@ -337,6 +337,29 @@ fn a_probe_on_cells_starts_a_fine_tune() {
         assert_ne!(before[name].1, after[name].1, "{name} did not train");
     }
     assert_eq!(after["_fc.weight"].0, vec![2, 1280 * 4], "a 2x2 map's head");
+
+    // Without --lr, an ONNX start's default rate (1e-3) comes with a warning, even under -q.
+    let o = jetpilot(&[
+        "-q",
+        "train",
+        "il",
+        "--data",
+        data.to_str().unwrap(),
+        "--init",
+        probe_model.to_str().unwrap(),
+        "--epochs",
+        "1",
+        "--batch",
+        "8",
+        "--out",
+        dir.path().join("default-lr").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("--lr defaults to 1e-3") && err.contains("give --lr"),
+        "{err}"
+    );
 }
 
 /// `train il --init imagenet`: the ImageNet classifier's head is replaced by one that
