@@ -432,14 +432,20 @@ const BUILT_IN_SIM_CONFIG: &str = include_str!("../../config/sim.toml");
 
 /// The config of `--config FILE`, else the built-in config/sim.toml. The built-in one's
 /// `model.path` points into this repository's .cache, so it is cleared and a run that
-/// needs a model (`has_model` false: no --model, no --expert, no --scatter) is refused.
-fn sim_config(path: Option<&Path>, has_model: bool) -> anyhow::Result<Config> {
+/// needs a model (`has_model` false: no --model, no --expert, no --scatter) is refused,
+/// naming `instead` (what else would do, e.g. "--expert") when there is something.
+fn sim_config(path: Option<&Path>, has_model: bool, instead: &str) -> anyhow::Result<Config> {
     if let Some(p) = path {
         return Ok(Config::load(p)?);
     }
     if !has_model {
+        let or = if instead.is_empty() {
+            String::new()
+        } else {
+            format!(" (or {instead})")
+        };
         anyhow::bail!(
-            "no model to drive with: give --model FILE (or --expert), or --config FILE whose model.path names one; without --config the built-in config/sim.toml is used, and it names none"
+            "no model to drive with: give --model FILE{or}, or --config FILE whose model.path names one; without --config the built-in config/sim.toml is used, and it names none"
         );
     }
     let mut cfg = Config::parse(BUILT_IN_SIM_CONFIG, "the built-in config/sim.toml")?;
@@ -448,8 +454,12 @@ fn sim_config(path: Option<&Path>, has_model: bool) -> anyhow::Result<Config> {
 }
 
 pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
+    if args.record_xy.is_some() && args.record.is_none() && args.scatter.is_none() {
+        anyhow::bail!("--record-xy needs --record DIR (a drive) or --scatter N (random poses)");
+    }
     let has_model = args.model.is_some() || args.expert || args.scatter.is_some();
-    let mut cfg = sim_config(args.config.as_deref(), has_model)?;
+    let instead = if args.realtime { "" } else { "--expert" };
+    let mut cfg = sim_config(args.config.as_deref(), has_model, instead)?;
     args.road.apply(&mut cfg);
     if let Some(s) = args.swerve_every {
         cfg.sim.expert.swerve_every_s = s;
@@ -479,9 +489,6 @@ pub fn sim(args: SimArgs) -> anyhow::Result<ExitCode> {
             args.png.as_deref(),
             args.real.as_deref(),
         );
-    }
-    if args.record_xy.is_some() && args.record.is_none() {
-        anyhow::bail!("--record-xy needs --record DIR (a drive) or --scatter N (random poses)");
     }
     let every = (args.seconds * cfg.sim.control_hz as f64 / 8.0).max(1.0) as u64;
     let mut recorder = match &args.record {
@@ -647,7 +654,8 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<ExitCode> {
             args.png.as_deref(),
         );
     }
-    let mut cfg = sim_config(args.config.as_deref(), args.model.is_some() || args.expert)?;
+    let has_model = args.model.is_some() || args.expert;
+    let mut cfg = sim_config(args.config.as_deref(), has_model, "--expert")?;
     args.road.apply(&mut cfg);
     let seconds = args.seconds.unwrap_or(cfg.sim.eval_seconds as f64);
     let (rig, driven) = drive(

@@ -355,9 +355,21 @@ fn without_a_config_sim_and_eval_use_the_built_in_sim_toml() {
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        err.contains("give --model FILE") && err.contains("built-in config/sim.toml"),
+        err.contains("give --model FILE (or --expert)") && err.contains("built-in config/sim.toml"),
         "{err}"
     );
+    // The real daemon cannot take --expert, so the refusal does not offer it.
+    let o = jetpilot(&["sim", "--realtime", "--seconds", "1"], false);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("give --model FILE,") && !err.contains("--expert"),
+        "{err}"
+    );
+    // A flag that needs another is named before the missing model.
+    let o = jetpilot(&["sim", "--record-xy", "xy"], false);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--record-xy needs --record DIR"), "{err}");
 }
 
 #[test]
