@@ -69,9 +69,13 @@ pub fn adopt_normalisation(start: &Start, contract: &mut ModelContract) {
         None => (contract.mean, contract.std) = start.arch.imagenet_normalisation(),
     }
     if *contract != before {
+        // Only what changed here: the input size and the head are settled later.
         tracing::info!(
             init = %path.display(),
-            "input normalisation from the start's weights: {contract}"
+            "input normalisation from the start's weights: {}, mean {:?}, std {:?}",
+            contract.channel_order.as_str(),
+            contract.mean,
+            contract.std
         );
     }
 }
