@@ -285,35 +285,35 @@ fn a_probe_on_cells_starts_a_fine_tune() {
     );
     let probe_model = probe.join("probe.onnx");
     let probe_px = scored_px(&probe_model, &data, &dir.path().join("score-probe"));
-    let il = |name: &str, lr: &str, backbone_lr: &str| {
+    // One epoch of `train il` from the probe into DIR/name, with `rates` (its --lr flags).
+    let run_il = |name: &str, rates: &[&str]| {
         let out = dir.path().join(name);
-        ok(
-            jetpilot(&[
-                "-q",
-                "train",
-                "il",
-                "--data",
-                data.to_str().unwrap(),
-                "--init",
-                probe_model.to_str().unwrap(),
-                // No --input-size: the probe's own 64, not the default config's 224.
-                "--epochs",
-                "1",
-                "--batch",
-                "8",
-                "--lr",
-                lr,
-                "--backbone-lr",
-                backbone_lr,
-                "--no-augment",
-                "--test-fraction",
-                "0.25",
-                "--out",
-                out.to_str().unwrap(),
-            ]),
-            "train il",
-        );
-        out.join("last.onnx")
+        let mut args = vec![
+            "-q",
+            "train",
+            "il",
+            "--data",
+            data.to_str().unwrap(),
+            "--init",
+            probe_model.to_str().unwrap(),
+            // No --input-size: the probe's own 64, not the default config's 224.
+            "--epochs",
+            "1",
+            "--batch",
+            "8",
+            "--no-augment",
+            "--test-fraction",
+            "0.25",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(rates);
+        jetpilot(&args)
+    };
+    let il = |name: &str, lr: &str, backbone_lr: &str| {
+        let rates = ["--lr", lr, "--backbone-lr", backbone_lr];
+        ok(run_il(name, &rates), "train il");
+        dir.path().join(name).join("last.onnx")
     };
     let kept = il("kept", "0", "0");
     let kept_px = scored_px(&kept, &data, &dir.path().join("score-kept"));
@@ -339,21 +339,7 @@ fn a_probe_on_cells_starts_a_fine_tune() {
     assert_eq!(after["_fc.weight"].0, vec![2, 1280 * 4], "a 2x2 map's head");
 
     // Without --lr, an ONNX start's default rate (1e-3) comes with a warning, even under -q.
-    let o = jetpilot(&[
-        "-q",
-        "train",
-        "il",
-        "--data",
-        data.to_str().unwrap(),
-        "--init",
-        probe_model.to_str().unwrap(),
-        "--epochs",
-        "1",
-        "--batch",
-        "8",
-        "--out",
-        dir.path().join("default-lr").to_str().unwrap(),
-    ]);
+    let o = run_il("default-lr", &[]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(
