@@ -225,7 +225,7 @@ pub fn main(args: IlArgs) -> anyhow::Result<ExitCode> {
     if start.contract.is_some() && args.lr.is_none() {
         tracing::warn!(
             lr = opts.lr,
-            "an ONNX start keeps its output layer, and --lr defaults to 1e-3: that suits a model `train il` made, but throws away the head of a `train probe` model (scripts/lp-ft.sh chose 1e-5 on the carpet, 1e-4 on the mat); give --lr to choose"
+            "an ONNX start keeps its output layer, and --lr defaults to 1e-3: that suits a model `train il` made, but throws away the head of a `train probe` model (scripts/lp-ft.sh chose 1e-5 or 1e-4 on the real sets); give --lr to choose"
         );
     }
     opts.backbone_lr = args.backbone_lr;
