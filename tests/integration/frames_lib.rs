@@ -6,11 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use jetpilot::dataset::jetbot_xy;
+use jetpilot::dataset::jetbot_xy::{self, UNIX_EPOCH_TICKS};
 use jetpilot::dataset::labelled::{Label, LabelledFrame, split_by_time};
-
-/// 100 ns ticks from the uuid1 epoch (1582) to the Unix epoch.
-const UNIX_EPOCH_TICKS: u64 = 0x01B2_1DD2_1381_4000;
 
 /// stdout of `bash -c '. scripts/lib/frames.sh; SCRIPT'` run in the repository root.
 fn frames_sh(script: &str) -> String {
