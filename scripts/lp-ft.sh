@@ -17,6 +17,9 @@
 #
 # Env: CANDIDATES (the `train il` flags of each fine-tune, separated by ';', default
 # "--lr 1e-4;--lr 1e-5"), EPOCHS (default 10), INPUT_SIZE (default 224), SEED (default 1),
+# TEST_SEEDS (more seeds, separated by spaces, for the test's fine-tune: each is run from the
+# test's probe and gets its own row), PROBE_DATA (more labelled folders, separated by spaces, that both probes fit on beside
+# REALDATA's own frames, e.g. the other real set; the fine-tunes and scores use REALDATA only),
 # BIN (skip the build). Every fine-tune has --freeze-bn and --head xy, and is scored at its
 # last epoch. Writes OUT/selection.csv (candidate, px, baseline_px), OUT/test.csv (model,
 # px, baseline_px, x_corr), OUT/sel/ and OUT/test/ (the models, logs and scores). The real
@@ -30,12 +33,20 @@ CANDIDATES=${CANDIDATES:---lr 1e-4;--lr 1e-5}
 EPOCHS=${EPOCHS:-10}
 INPUT_SIZE=${INPUT_SIZE:-224}
 SEED=${SEED:-1}
+PROBE_DATA=${PROBE_DATA:-}
+TEST_SEEDS=${TEST_SEEDS:-}
 if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   echo "usage: scripts/lp-ft.sh REALDATA [OUT]: REALDATA must be a folder of labelled" >&2
   echo "JetBot frames (e.g. ../shared/realdata/jetbot_xy_carpet); got '${REAL}'" >&2
   exit 2
 fi
 REAL=$(cd "$REAL" && pwd)
+# The probes' extra folders, as `--data DIR` pairs.
+extra=()
+for d in $PROBE_DATA; do
+  [ -d "$d" ] || { echo "PROBE_DATA: '$d' is not a folder" >&2; exit 2; }
+  extra+=(--data "$(cd "$d" && pwd)")
+done
 scripts/install-imagenet-weights.sh > /dev/null
 . scripts/lib/binary.sh
 . scripts/lib/frames.sh
@@ -60,16 +71,17 @@ failed() {
   tail -n 5 "$2" >&2
   exit 1
 }
-# probe FRAMES DIR: the probe of FRAMES into DIR/probe.
+[ ${#extra[@]} -eq 0 ] || echo "the probes also fit on: $PROBE_DATA"
+# probe FRAMES DIR: the probe of FRAMES (and PROBE_DATA) into DIR/probe.
 probe() {
   "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --data "$1" \
-    -o "$2/probe" > "$2/probe.log" 2>&1 || failed "train probe" "$2/probe.log"
+    "${extra[@]}" -o "$2/probe" > "$2/probe.log" 2>&1 || failed "train probe" "$2/probe.log"
 }
-# finetune ARGS FRAMES DIR NAME: the fine-tune from DIR/probe into DIR/NAME.
+# finetune ARGS FRAMES DIR NAME [SEED]: the fine-tune from DIR/probe into DIR/NAME.
 finetune() {
   # shellcheck disable=SC2086 # ARGS is a list of words
   "$B" train il --init "$3/probe/probe.onnx" --input-size "$INPUT_SIZE" --head xy \
-    --freeze-bn true --epochs "$EPOCHS" --seed "$SEED" $1 --data "$2" --out "$3/$4" \
+    --freeze-bn true --epochs "$EPOCHS" --seed "${5:-$SEED}" $1 --data "$2" --out "$3/$4" \
     > "$3/$4.log" 2>&1 || failed "train il $1" "$3/$4.log"
 }
 # scored MODEL DATA OUTFILE: `score`'s text for MODEL on DATA's latest 20 %.
@@ -108,8 +120,13 @@ T="$OUT/test"
 mkdir -p "$T"
 probe "$OUT/frames_train" "$T"
 finetune "$best" "$OUT/frames_train" "$T" ft
+models=("probe alone:$T/probe/probe.onnx" "fine-tune $best:$T/ft/last.onnx")
+for s in $TEST_SEEDS; do
+  finetune "$best" "$OUT/frames_train" "$T" "ft_seed$s" "$s"
+  models+=("fine-tune $best (seed $s):$T/ft_seed$s/last.onnx")
+done
 echo "model,px,baseline_px,x_corr" > "$OUT/test.csv"
-for m in "probe alone:$T/probe/probe.onnx" "fine-tune $best:$T/ft/last.onnx"; do
+for m in "${models[@]}"; do
   name=${m%%:*}
   scored "${m#*:}" "$REAL" "$T/${name// /_}_score.txt"
   f="$T/${name// /_}_score.txt"

@@ -2,8 +2,9 @@
 //! EfficientNet-Lite0, then fine-tunes from it, one chosen on the selection split and run
 //! again for the test frames. On 40 simulator frames in JetBot's xy layout at 64x64, one
 //! epoch each: `--lr 0` keeps the probe, so its selection row must equal the probe's; the
-//! split sizes must be the ones `score --split-by-time 0.2` uses twice over. Needs the
-//! `train` feature, ONNX Runtime and python3 with pip (the script installs the weights).
+//! split sizes must be the ones `score --split-by-time 0.2` uses twice over. One more run
+//! checks `PROBE_DATA` and `TEST_SEEDS`. Needs the `train` feature, ONNX Runtime and python3
+//! with pip (the script installs the weights).
 #![cfg(feature = "train")]
 
 use std::path::{Path, PathBuf};
@@ -23,6 +24,10 @@ fn stand_in_realdata(dir: &Path) -> PathBuf {
 }
 
 fn lp_ft(real: &Path, out: &Path, candidates: &str) -> Output {
+    lp_ft_env(real, out, candidates, &[])
+}
+
+fn lp_ft_env(real: &Path, out: &Path, candidates: &str, env: &[(&str, &str)]) -> Output {
     Command::new("bash")
         .arg(repo("scripts/lp-ft.sh"))
         .arg(real)
@@ -32,6 +37,9 @@ fn lp_ft(real: &Path, out: &Path, candidates: &str) -> Output {
         .env("EPOCHS", "1")
         .env("INPUT_SIZE", "64")
         .env_remove("SEED")
+        .env_remove("PROBE_DATA")
+        .env_remove("TEST_SEEDS")
+        .envs(env.iter().copied())
         .output()
         .unwrap()
 }
@@ -148,6 +156,90 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
         );
     }
     assert!(out.join("test/ft/last.onnx").is_file());
+}
+
+#[test]
+fn probe_data_joins_both_probes_but_not_the_fine_tunes_and_test_seeds_add_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let real = stand_in_realdata(dir.path());
+    let other = dir.path().join("other");
+    scattered_xy_views(&repo("config/sim.toml"), 10, &other);
+    let out = dir.path().join("out");
+    let o = lp_ft_env(
+        &real,
+        &out,
+        "--lr 1e-3 --batch 8",
+        &[("PROBE_DATA", other.to_str().unwrap()), ("TEST_SEEDS", "2")],
+    );
+    let log = log_of(&o);
+    assert!(o.status.success(), "{log}");
+    assert!(log.contains("the probes also fit on:"), "{log}");
+
+    // Each probe fits on its own frames and the other folder's 10.
+    let read = |p: &str| std::fs::read_to_string(out.join(p)).unwrap();
+    assert!(
+        read("sel/probe.log").contains("of 36 frames"),
+        "{}",
+        read("sel/probe.log")
+    );
+    assert!(
+        read("test/probe.log").contains("of 42 frames"),
+        "{}",
+        read("test/probe.log")
+    );
+    // The fine-tune reads the 26 selection frames only; the scores are on the stand-in's
+    // own split.
+    assert!(
+        read("sel/ft0.log").contains("samples=26 "),
+        "{}",
+        read("sel/ft0.log")
+    );
+    assert!(
+        read("sel/probe_score.txt").contains("the latest 6 frames are scored, the earlier 26"),
+        "{}",
+        read("sel/probe_score.txt")
+    );
+
+    // TEST_SEEDS: the chosen fine-tune once more from the test's probe, with seed 2.
+    let test = rows(&out.join("test.csv"));
+    let names: Vec<&str> = test.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "probe alone",
+            "fine-tune --lr 1e-3 --batch 8",
+            "fine-tune --lr 1e-3 --batch 8 (seed 2)"
+        ],
+        "{test:?}"
+    );
+    assert!(
+        read("test/ft_seed2.log").contains("samples=32 "),
+        "{}",
+        read("test/ft_seed2.log")
+    );
+    let weights = |p: &str| std::fs::read(out.join(p)).unwrap();
+    assert_ne!(
+        weights("test/ft/last.onnx"),
+        weights("test/ft_seed2/last.onnx"),
+        "seed 2 trained the same model as seed 1"
+    );
+}
+
+#[test]
+fn a_probe_data_folder_that_is_missing_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = lp_ft_env(
+        dir.path(),
+        &dir.path().join("out"),
+        "--lr 0",
+        &[("PROBE_DATA", "/no/such/folder")],
+    );
+    let log = log_of(&o);
+    assert_eq!(o.status.code(), Some(2), "{log}");
+    assert!(
+        log.contains("PROBE_DATA: '/no/such/folder' is not a folder"),
+        "{log}"
+    );
 }
 
 #[test]
