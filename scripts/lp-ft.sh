@@ -18,12 +18,12 @@
 # Env: CANDIDATES (the `train il` flags of each fine-tune, separated by ';', default
 # "--lr 1e-4;--lr 1e-5"), EPOCHS (default 10), INPUT_SIZE (default 224), SEED (default 1),
 # TEST_SEEDS (more seeds, separated by spaces, for the test's fine-tune: each is run from the
-# test's probe and gets its own row), PROBE_DATA (more labelled folders, separated by spaces, that both probes fit on beside
-# REALDATA's own frames, e.g. the other real set; the fine-tunes and scores use REALDATA only),
-# BIN (skip the build). Every fine-tune has --freeze-bn and --head xy, and is scored at its
-# last epoch. Writes OUT/selection.csv (candidate, px, baseline_px), OUT/test.csv (model,
-# px, baseline_px, x_corr), OUT/sel/ and OUT/test/ (the models, logs and scores). The real
-# frames are linked, not copied.
+# test's probe and gets its own row), PROBE_DATA (more labelled folders, separated by spaces,
+# that both probes fit on beside REALDATA's own frames, e.g. the other real set; the
+# fine-tunes and scores use REALDATA only), BIN (skip the build). Every fine-tune has
+# --freeze-bn and --head xy, and is scored at its last epoch. Writes OUT/selection.csv
+# (candidate, px, baseline_px), OUT/test.csv (model, px, baseline_px, x_corr), OUT/sel/ and
+# OUT/test/ (the models, logs and scores). The real frames are linked, not copied.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -47,6 +47,7 @@ for d in $PROBE_DATA; do
   [ -d "$d" ] || { echo "PROBE_DATA: '$d' is not a folder" >&2; exit 2; }
   extra+=(--data "$(cd "$d" && pwd)")
 done
+[ ${#extra[@]} -eq 0 ] || echo "the probes also fit on: $PROBE_DATA"
 scripts/install-imagenet-weights.sh > /dev/null
 . scripts/lib/binary.sh
 . scripts/lib/frames.sh
@@ -71,7 +72,6 @@ failed() {
   tail -n 5 "$2" >&2
   exit 1
 }
-[ ${#extra[@]} -eq 0 ] || echo "the probes also fit on: $PROBE_DATA"
 # probe FRAMES DIR: the probe of FRAMES (and PROBE_DATA) into DIR/probe.
 probe() {
   "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --data "$1" \
