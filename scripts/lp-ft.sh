@@ -20,10 +20,15 @@
 # TEST_SEEDS (more seeds, separated by spaces, for the test's fine-tune: each is run from the
 # test's probe and gets its own row), PROBE_DATA (more labelled folders, separated by spaces,
 # that both probes fit on beside REALDATA's own frames, e.g. the other real set; the
-# fine-tunes and scores use REALDATA only), BIN (skip the build). Every fine-tune has
-# --freeze-bn and --head xy, and is scored at its last epoch. Writes OUT/selection.csv
-# (candidate, px, baseline_px), OUT/test.csv (model, px, baseline_px, x_corr), OUT/sel/ and
-# OUT/test/ (the models, logs and scores). The real frames are linked, not copied.
+# fine-tunes and scores use REALDATA only), BIN (skip the build). PROBE_DATA may list
+# alternatives separated by ';', '-' for REALDATA's frames alone (e.g. "-;MAT;MAT SIM"):
+# the selection then fits one probe per alternative, runs every candidate from each, and
+# the lowest fine-tune row picks the alternative and the candidate together; the rows are
+# named with the alternative's folders (their base names joined by '+', "own" for '-').
+# Every fine-tune has --freeze-bn and --head xy, and is scored at its last epoch. Writes
+# OUT/selection.csv (candidate, px, baseline_px), OUT/test.csv (model, px, baseline_px,
+# x_corr), OUT/sel/ and OUT/test/ (the models, logs and scores; OUT/sel/poolK/ for the
+# K-th alternative). The real frames are linked, not copied.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -41,13 +46,34 @@ if [ -z "$REAL" ] || [ ! -d "$REAL" ]; then
   exit 2
 fi
 REAL=$(cd "$REAL" && pwd)
-# The probes' extra folders, as `--data DIR` pairs.
-extra=()
-for d in $PROBE_DATA; do
-  [ -d "$d" ] || { echo "PROBE_DATA: '$d' is not a folder" >&2; exit 2; }
-  extra+=(--data "$(cd "$d" && pwd)")
+# PROBE_DATA's alternatives; each folder is checked before anything runs.
+IFS=';' read -r -a pools <<< "$PROBE_DATA"
+[ ${#pools[@]} -gt 0 ] || pools=("")
+for alt in "${pools[@]}"; do
+  for d in $alt; do
+    [ "$d" = - ] || [ -d "$d" ] || { echo "PROBE_DATA: '$d' is not a folder" >&2; exit 2; }
+  done
 done
-[ ${#extra[@]} -eq 0 ] || echo "the probes also fit on: $PROBE_DATA"
+# use_pool ALT: sets `extra` (ALT's folders as `--data DIR` pairs) and `pool_label`.
+use_pool() {
+  extra=()
+  pool_label=
+  local d
+  for d in $1; do
+    [ "$d" != - ] || continue
+    extra+=(--data "$(cd "$d" && pwd)")
+    pool_label+=${pool_label:++}$(basename "$d")
+  done
+  pool_label=${pool_label:-own}
+}
+# A row's name gains " (probe data: LABEL)" only where there are alternatives to tell apart.
+named() {
+  if [ ${#pools[@]} -gt 1 ]; then echo "$1 (probe data: $pool_label)"; else echo "$1"; fi
+}
+for alt in "${pools[@]}"; do
+  use_pool "$alt"
+  [ ${#extra[@]} -eq 0 ] || echo "the probes also fit on: $alt"
+done
 scripts/install-imagenet-weights.sh > /dev/null
 . scripts/lib/binary.sh
 . scripts/lib/frames.sh
@@ -72,7 +98,7 @@ failed() {
   tail -n 5 "$2" >&2
   exit 1
 }
-# probe FRAMES DIR: the probe of FRAMES (and PROBE_DATA) into DIR/probe.
+# probe FRAMES DIR: the probe of FRAMES (and the alternative's folders, `extra`) into DIR/probe.
 probe() {
   "$B" train probe --init imagenet --input-size "$INPUT_SIZE" --head xy --data "$1" \
     "${extra[@]}" -o "$2/probe" > "$2/probe.log" 2>&1 || failed "train probe" "$2/probe.log"
@@ -93,43 +119,56 @@ scored() {
 echo "== selection"
 S="$OUT/sel"
 mkdir -p "$S"
-probe "$OUT/frames_fit" "$S"
-scored "$S/probe/probe.onnx" "$OUT/frames_train" "$S/probe_score.txt"
 echo "candidate,px,baseline_px" > "$OUT/selection.csv"
-echo "\"probe alone\",$(mean model "$S/probe_score.txt"),$(mean baseline "$S/probe_score.txt")" \
-  | tee -a "$OUT/selection.csv"
 IFS=';' read -r -a candidates <<< "$CANDIDATES"
 best=
 best_px=
-for i in "${!candidates[@]}"; do
-  args=${candidates[$i]}
-  finetune "$args" "$OUT/frames_fit" "$S" "ft$i"
-  scored "$S/ft$i/last.onnx" "$OUT/frames_train" "$S/ft${i}_score.txt"
-  px=$(mean model "$S/ft${i}_score.txt")
-  echo "\"fine-tune $args\",$px,$(mean baseline "$S/ft${i}_score.txt")" \
-    | tee -a "$OUT/selection.csv"
-  if [ -z "$best_px" ] || awk -v a="$px" -v b="$best_px" 'BEGIN { exit !(a < b) }'; then
-    best=$args
-    best_px=$px
-  fi
+best_pool=
+for k in "${!pools[@]}"; do
+  use_pool "${pools[$k]}"
+  # One alternative keeps the layout of old runs: OUT/sel/probe, OUT/sel/ft0, ...
+  D=$S
+  [ ${#pools[@]} -eq 1 ] || D="$S/pool$k"
+  mkdir -p "$D"
+  probe "$OUT/frames_fit" "$D"
+  scored "$D/probe/probe.onnx" "$OUT/frames_train" "$D/probe_score.txt"
+  f="$D/probe_score.txt"
+  echo "\"$(named "probe alone")\",$(mean model "$f"),$(mean baseline "$f")" | tee -a "$OUT/selection.csv"
+  for i in "${!candidates[@]}"; do
+    args=${candidates[$i]}
+    finetune "$args" "$OUT/frames_fit" "$D" "ft$i"
+    scored "$D/ft$i/last.onnx" "$OUT/frames_train" "$D/ft${i}_score.txt"
+    px=$(mean model "$D/ft${i}_score.txt")
+    echo "\"$(named "fine-tune $args")\",$px,$(mean baseline "$D/ft${i}_score.txt")" \
+      | tee -a "$OUT/selection.csv"
+    if [ -z "$best_px" ] || awk -v a="$px" -v b="$best_px" 'BEGIN { exit !(a < b) }'; then
+      best=$args
+      best_px=$px
+      best_pool=$k
+    fi
+  done
 done
-echo "chosen: fine-tune $best ($best_px px on the selection)"
+use_pool "${pools[$best_pool]}"
+echo "chosen: $(named "fine-tune $best") ($best_px px on the selection)"
 
 echo "== test"
 T="$OUT/test"
 mkdir -p "$T"
 probe "$OUT/frames_train" "$T"
 finetune "$best" "$OUT/frames_train" "$T" ft
-models=("probe alone:$T/probe/probe.onnx" "fine-tune $best:$T/ft/last.onnx")
+# NAME|MODEL pairs (a name may hold ':', "probe data: own").
+models=("$(named "probe alone")|$T/probe/probe.onnx")
+models+=("$(named "fine-tune $best")|$T/ft/last.onnx")
 for s in $TEST_SEEDS; do
   finetune "$best" "$OUT/frames_train" "$T" "ft_seed$s" "$s"
-  models+=("fine-tune $best (seed $s):$T/ft_seed$s/last.onnx")
+  models+=("$(named "fine-tune $best") (seed $s)|$T/ft_seed$s/last.onnx")
 done
 echo "model,px,baseline_px,x_corr" > "$OUT/test.csv"
 for m in "${models[@]}"; do
-  name=${m%%:*}
-  scored "${m#*:}" "$REAL" "$T/${name// /_}_score.txt"
-  f="$T/${name// /_}_score.txt"
+  name=${m%%|*}
+  f=${name//[ \/]/_}
+  f="$T/${f}_score.txt"
+  scored "${m#*|}" "$REAL" "$f"
   echo "\"$name\",$(mean model "$f"),$(mean baseline "$f"),$(xcorr "$f")" \
     | tee -a "$OUT/test.csv"
 done

@@ -3,8 +3,9 @@
 //! again for the test frames. On 40 simulator frames in JetBot's xy layout at 64x64, one
 //! epoch each: `--lr 0` keeps the probe, so its selection row must equal the probe's; the
 //! split sizes must be the ones `score --split-by-time 0.2` uses twice over. One more run
-//! checks `PROBE_DATA` and `TEST_SEEDS`. Needs the `train` feature, ONNX Runtime and python3
-//! with pip (the script installs the weights).
+//! checks `PROBE_DATA` (two alternatives, chosen on the selection split) and `TEST_SEEDS`.
+//! Needs the `train` feature, ONNX Runtime and python3 with pip (the script installs the
+//! weights).
 #![cfg(feature = "train")]
 
 use std::path::{Path, PathBuf};
@@ -159,45 +160,74 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
 }
 
 #[test]
-fn probe_data_joins_both_probes_but_not_the_fine_tunes_and_test_seeds_add_rows() {
+fn probe_data_alternatives_are_chosen_with_the_candidate_and_test_seeds_add_rows() {
     let dir = tempfile::tempdir().unwrap();
     let real = stand_in_realdata(dir.path());
     let other = dir.path().join("other");
     scattered_xy_views(&repo("config/sim.toml"), 10, &other);
     let out = dir.path().join("out");
+    // Two alternatives: the stand-in's own frames alone, and with the other folder's 10.
+    let alternatives = format!("-;{}", other.display());
     let o = lp_ft_env(
         &real,
         &out,
         "--lr 1e-3 --batch 8",
-        &[("PROBE_DATA", other.to_str().unwrap()), ("TEST_SEEDS", "2")],
+        &[("PROBE_DATA", alternatives.as_str()), ("TEST_SEEDS", "2")],
     );
     let log = log_of(&o);
     assert!(o.status.success(), "{log}");
     assert!(log.contains("the probes also fit on:"), "{log}");
-
-    // Each probe fits on its own frames and the other folder's 10.
     let read = |p: &str| std::fs::read_to_string(out.join(p)).unwrap();
+
+    // One probe per alternative, on the 26 selection frames alone and with the other 10;
+    // the fine-tunes read the 26 only, and the scores are on the stand-in's own split.
     assert!(
-        read("sel/probe.log").contains("of 36 frames"),
+        read("sel/pool0/probe.log").contains("of 26 frames"),
         "{}",
-        read("sel/probe.log")
+        read("sel/pool0/probe.log")
     );
     assert!(
-        read("test/probe.log").contains("of 42 frames"),
+        read("sel/pool1/probe.log").contains("of 36 frames"),
+        "{}",
+        read("sel/pool1/probe.log")
+    );
+    for k in 0..2 {
+        let ft = read(&format!("sel/pool{k}/ft0.log"));
+        assert!(ft.contains("samples=26 "), "{ft}");
+        let scored = read(&format!("sel/pool{k}/probe_score.txt"));
+        assert!(
+            scored.contains("the latest 6 frames are scored, the earlier 26"),
+            "{scored}"
+        );
+    }
+    let sel = rows(&out.join("selection.csv"));
+    let names: Vec<&str> = sel.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "probe alone (probe data: own)",
+            "fine-tune --lr 1e-3 --batch 8 (probe data: own)",
+            "probe alone (probe data: other)",
+            "fine-tune --lr 1e-3 --batch 8 (probe data: other)"
+        ],
+        "{sel:?}"
+    );
+
+    // The lower fine-tune row picks the alternative; the test's probe fits on its frames.
+    let (label, test_frames) = if px(&sel[1][1]) <= px(&sel[3][1]) {
+        ("own", 32)
+    } else {
+        ("other", 42)
+    };
+    let chosen = format!("fine-tune --lr 1e-3 --batch 8 (probe data: {label})");
+    assert!(
+        log.contains(&format!("chosen: {chosen} (")),
+        "{sel:?}\n{log}"
+    );
+    assert!(
+        read("test/probe.log").contains(&format!("of {test_frames} frames")),
         "{}",
         read("test/probe.log")
-    );
-    // The fine-tune reads the 26 selection frames only; the scores are on the stand-in's
-    // own split.
-    assert!(
-        read("sel/ft0.log").contains("samples=26 "),
-        "{}",
-        read("sel/ft0.log")
-    );
-    assert!(
-        read("sel/probe_score.txt").contains("the latest 6 frames are scored, the earlier 26"),
-        "{}",
-        read("sel/probe_score.txt")
     );
 
     // TEST_SEEDS: the chosen fine-tune once more from the test's probe, with seed 2.
@@ -206,9 +236,9 @@ fn probe_data_joins_both_probes_but_not_the_fine_tunes_and_test_seeds_add_rows()
     assert_eq!(
         names,
         [
-            "probe alone",
-            "fine-tune --lr 1e-3 --batch 8",
-            "fine-tune --lr 1e-3 --batch 8 (seed 2)"
+            format!("probe alone (probe data: {label})"),
+            chosen.clone(),
+            format!("{chosen} (seed 2)")
         ],
         "{test:?}"
     );
@@ -227,19 +257,21 @@ fn probe_data_joins_both_probes_but_not_the_fine_tunes_and_test_seeds_add_rows()
 
 #[test]
 fn a_probe_data_folder_that_is_missing_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let o = lp_ft_env(
-        dir.path(),
-        &dir.path().join("out"),
-        "--lr 0",
-        &[("PROBE_DATA", "/no/such/folder")],
-    );
-    let log = log_of(&o);
-    assert_eq!(o.status.code(), Some(2), "{log}");
-    assert!(
-        log.contains("PROBE_DATA: '/no/such/folder' is not a folder"),
-        "{log}"
-    );
+    for probe_data in ["/no/such/folder", "-;/no/such/folder"] {
+        let dir = tempfile::tempdir().unwrap();
+        let o = lp_ft_env(
+            dir.path(),
+            &dir.path().join("out"),
+            "--lr 0",
+            &[("PROBE_DATA", probe_data)],
+        );
+        let log = log_of(&o);
+        assert_eq!(o.status.code(), Some(2), "{probe_data}: {log}");
+        assert!(
+            log.contains("PROBE_DATA: '/no/such/folder' is not a folder"),
+            "{log}"
+        );
+    }
 }
 
 #[test]
