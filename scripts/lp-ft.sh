@@ -18,9 +18,10 @@
 # Env: CANDIDATES (the `train il` flags of each fine-tune, separated by ';', default
 # "--lr 1e-4;--lr 1e-5"), EPOCHS (default 10), INPUT_SIZE (default 224), SEED (default 1),
 # TEST_SEEDS (more seeds, separated by spaces, for the test's fine-tune: each is run from the
-# test's probe and gets its own row), PROBE_DATA (more labelled folders, separated by spaces,
-# that both probes fit on beside REALDATA's own frames, e.g. the other real set; the
-# fine-tunes and scores use REALDATA only), BIN (skip the build). PROBE_DATA may list
+# test's probe and gets its own row; so does the ensemble of all the seeds' models, `model
+# ensemble`), PROBE_DATA (more labelled folders, separated by spaces, that both probes fit
+# on beside REALDATA's own frames, e.g. the other real set; the fine-tunes and scores use
+# REALDATA only), BIN (skip the build). PROBE_DATA may list
 # alternatives separated by ';', '-' for REALDATA's frames alone (e.g. "-;MAT;MAT SIM"):
 # the selection then fits one probe per alternative, runs every candidate from each, and
 # the lowest fine-tune row picks the alternative and the candidate together; the rows are
@@ -133,7 +134,8 @@ for k in "${!pools[@]}"; do
   probe "$OUT/frames_fit" "$D"
   scored "$D/probe/probe.onnx" "$OUT/frames_train" "$D/probe_score.txt"
   f="$D/probe_score.txt"
-  echo "\"$(named "probe alone")\",$(mean model "$f"),$(mean baseline "$f")" | tee -a "$OUT/selection.csv"
+  echo "\"$(named "probe alone")\",$(mean model "$f"),$(mean baseline "$f")" \
+    | tee -a "$OUT/selection.csv"
   for i in "${!candidates[@]}"; do
     args=${candidates[$i]}
     finetune "$args" "$OUT/frames_fit" "$D" "ft$i"
@@ -159,10 +161,19 @@ finetune "$best" "$OUT/frames_train" "$T" ft
 # NAME|MODEL pairs (a name may hold ':', "probe data: own").
 models=("$(named "probe alone")|$T/probe/probe.onnx")
 models+=("$(named "fine-tune $best")|$T/ft/last.onnx")
+members=("$T/ft/last.onnx")
 for s in $TEST_SEEDS; do
   finetune "$best" "$OUT/frames_train" "$T" "ft_seed$s" "$s"
   models+=("$(named "fine-tune $best") (seed $s)|$T/ft_seed$s/last.onnx")
+  members+=("$T/ft_seed$s/last.onnx")
 done
+# With more seeds, their ensemble too: one file that answers the mean of the seeds' answers.
+if [ ${#members[@]} -gt 1 ]; then
+  "$B" model ensemble "${members[@]}" -o "$T/ensemble.onnx" > "$T/ensemble.log" 2>&1 \
+    || failed "model ensemble" "$T/ensemble.log"
+  seeds=$(echo "$SEED" $TEST_SEEDS)
+  models+=("$(named "fine-tune $best") (ensemble of seeds $seeds)|$T/ensemble.onnx")
+fi
 echo "model,px,baseline_px,x_corr" > "$OUT/test.csv"
 for m in "${models[@]}"; do
   name=${m%%|*}

@@ -3,7 +3,8 @@
 //! again for the test frames. On 40 simulator frames in JetBot's xy layout at 64x64, one
 //! epoch each: `--lr 0` keeps the probe, so its selection row must equal the probe's; the
 //! split sizes must be the ones `score --split-by-time 0.2` uses twice over. One more run
-//! checks `PROBE_DATA` (two alternatives, chosen on the selection split) and `TEST_SEEDS`.
+//! checks `PROBE_DATA` (two alternatives, chosen on the selection split) and `TEST_SEEDS`
+//! (a row per seed and one for their ensemble).
 //! Needs the `train` feature, ONNX Runtime and python3 with pip (the script installs the
 //! weights).
 #![cfg(feature = "train")]
@@ -238,8 +239,16 @@ fn probe_data_alternatives_are_chosen_with_the_candidate_and_test_seeds_add_rows
         [
             format!("probe alone (probe data: {label})"),
             chosen.clone(),
-            format!("{chosen} (seed 2)")
+            format!("{chosen} (seed 2)"),
+            format!("{chosen} (ensemble of seeds 1 2)")
         ],
+        "{test:?}"
+    );
+    // The ensemble answers the mean of the two seeds' answers, and a distance is convex:
+    // on every frame it misses by no more than the seeds' mean miss (rows round to 0.1 px).
+    assert!(out.join("test/ensemble.onnx").is_file());
+    assert!(
+        px(&test[3][1]) <= (px(&test[1][1]) + px(&test[2][1])) / 2.0 + 0.1,
         "{test:?}"
     );
     assert!(

@@ -22,6 +22,7 @@ mod image_install;
 mod interventions_kill;
 mod layouts_ilddpg;
 mod lp_ft;
+mod model_ensemble;
 mod paper_experiment;
 mod poses;
 mod pretrained;

