@@ -56,6 +56,22 @@ fn an_ensemble_answers_the_mean_of_its_models() {
     // The members differ, so the mean is not any one of them.
     assert!(answers[0] != answers[1], "{answers:?}");
 
+    let o = Command::new(env!("CARGO_BIN_EXE_jetpilot"))
+        .args(["model", "info"])
+        .arg(&e)
+        .output()
+        .unwrap();
+    let info = log_of(&o);
+    assert!(
+        info.contains(&format!(
+            "ensemble   mean of 3 models: {}, {}, {}",
+            a.display(),
+            b.display(),
+            c.display()
+        )),
+        "{info}"
+    );
+
     // An ensemble holds several networks' weights: no start for `train il --init`.
     let err = onnx::read_net_weights(&e).unwrap_err().to_string();
     assert!(
