@@ -60,6 +60,23 @@ fn rows(path: &Path) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// The CSV's first column (the row names).
+fn names(path: &Path) -> Vec<String> {
+    rows(path)
+        .into_iter()
+        .map(|mut r| r.swap_remove(0))
+        .collect()
+}
+
+/// `score`'s text on the stand-in's 32 earlier frames: the latest 6 scored, as the script
+/// splits them.
+fn assert_selection_split(scored: &str) {
+    assert!(
+        scored.contains("the latest 6 frames are scored, the earlier 26"),
+        "{scored}"
+    );
+}
+
 fn px(cell: &str) -> f64 {
     cell.parse()
         .unwrap_or_else(|_| panic!("not a number: {cell:?}"))
@@ -99,18 +116,13 @@ fn lp_ft_sh_chooses_on_the_selection_split_and_reports_the_choice_on_the_test_fr
         probe_log("test")
     );
     // `score` itself splits the selection's 32 frames the same way.
-    let scored = std::fs::read_to_string(out.join("sel").join("probe_score.txt")).unwrap();
-    assert!(
-        scored.contains("the latest 6 frames are scored, the earlier 26"),
-        "{scored}"
-    );
+    assert_selection_split(&std::fs::read_to_string(out.join("sel/probe_score.txt")).unwrap());
 
     // The probe alone and both candidates on the selection's latest 6 frames; `--lr 0`
     // leaves the probe's weights as they were.
     let sel = rows(&out.join("selection.csv"));
-    let names: Vec<&str> = sel.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(
-        names,
+        names(&out.join("selection.csv")),
         [
             "probe alone",
             "fine-tune --lr 0 --batch 8",
@@ -195,16 +207,11 @@ fn probe_data_alternatives_are_chosen_with_the_candidate_and_test_seeds_add_rows
     for k in 0..2 {
         let ft = read(&format!("sel/pool{k}/ft0.log"));
         assert!(ft.contains("samples=26 "), "{ft}");
-        let scored = read(&format!("sel/pool{k}/probe_score.txt"));
-        assert!(
-            scored.contains("the latest 6 frames are scored, the earlier 26"),
-            "{scored}"
-        );
+        assert_selection_split(&read(&format!("sel/pool{k}/probe_score.txt")));
     }
     let sel = rows(&out.join("selection.csv"));
-    let names: Vec<&str> = sel.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(
-        names,
+        names(&out.join("selection.csv")),
         [
             "probe alone (probe data: own)",
             "fine-tune --lr 1e-3 --batch 8 (probe data: own)",
@@ -233,9 +240,8 @@ fn probe_data_alternatives_are_chosen_with_the_candidate_and_test_seeds_add_rows
 
     // TEST_SEEDS: the chosen fine-tune once more from the test's probe, with seed 2.
     let test = rows(&out.join("test.csv"));
-    let names: Vec<&str> = test.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(
-        names,
+        names(&out.join("test.csv")),
         [
             format!("probe alone (probe data: {label})"),
             chosen.clone(),
