@@ -21,11 +21,11 @@
 # test's probe and gets its own row; so does the ensemble of all the seeds' models, `model
 # ensemble`), PROBE_DATA (more labelled folders, separated by spaces, that both probes fit
 # on beside REALDATA's own frames, e.g. the other real set; the fine-tunes and scores use
-# REALDATA only), BIN (skip the build). PROBE_DATA may list
-# alternatives separated by ';', '-' for REALDATA's frames alone (e.g. "-;MAT;MAT SIM"):
-# the selection then fits one probe per alternative, runs every candidate from each, and
-# the lowest fine-tune row picks the alternative and the candidate together; the rows are
-# named with the alternative's folders (their base names joined by '+', "own" for '-').
+# REALDATA only), BIN (skip the build). PROBE_DATA may list alternatives separated by ';',
+# '-' for REALDATA's frames alone (e.g. "-;MAT;MAT SIM"): the selection then fits one probe
+# per alternative, runs every candidate from each, and the lowest fine-tune row picks the
+# alternative and the candidate together; the rows are named with the alternative's
+# folders (their base names joined by '+', "own" for '-').
 # Every fine-tune has --freeze-bn and --head xy, and is scored at its last epoch. Writes
 # OUT/selection.csv (candidate, px, baseline_px), OUT/test.csv (model, px, baseline_px,
 # x_corr), OUT/sel/ and OUT/test/ (the models, logs and scores; OUT/sel/poolK/ for the

@@ -85,9 +85,10 @@ pub fn inspect_file(path: &Path) -> Result<ModelSummary, OnnxError> {
     inspect_bytes(Bytes::from(bytes), &shown)
 }
 
-/// Decodes a model from `bytes` (initializer data is not copied) and summarises it.
+/// Decodes a model from `bytes` (initializer data is not copied), refused where it is empty,
+/// not protobuf, or has no IR version, no graph, or no inputs or outputs.
 /// `path_for_errors` names the source in error messages.
-pub fn inspect_bytes(bytes: Bytes, path_for_errors: &str) -> Result<ModelSummary, OnnxError> {
+pub fn decode_model(bytes: Bytes, path_for_errors: &str) -> Result<ModelProto, OnnxError> {
     let not_model = |reason: &str| OnnxError::NotAModel {
         path: path_for_errors.to_string(),
         reason: reason.to_string(),
@@ -102,12 +103,21 @@ pub fn inspect_bytes(bytes: Bytes, path_for_errors: &str) -> Result<ModelSummary
     if model.ir_version <= 0 {
         return Err(not_model("no IR version"));
     }
-    let Some(graph) = model.graph else {
-        return Err(not_model("no graph"));
-    };
-    if graph.input.is_empty() || graph.output.is_empty() {
-        return Err(not_model("the graph has no inputs or no outputs"));
+    match &model.graph {
+        None => Err(not_model("no graph")),
+        Some(g) if g.input.is_empty() || g.output.is_empty() => {
+            Err(not_model("the graph has no inputs or no outputs"))
+        }
+        Some(_) => Ok(model),
     }
+}
+
+/// Decodes a model from `bytes` (initializer data is not copied) and summarises it.
+/// `path_for_errors` names the source in error messages.
+pub fn inspect_bytes(bytes: Bytes, path_for_errors: &str) -> Result<ModelSummary, OnnxError> {
+    let model = decode_model(bytes, path_for_errors)?;
+    // `decode_model` refuses a model without a graph.
+    let graph = model.graph.unwrap_or_default();
 
     let init_names: BTreeSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let inputs = graph

@@ -100,19 +100,15 @@ pub enum OnnxError {
     TensorData { name: String, reason: String },
 }
 
-/// Reads and decodes the ONNX file at `path`, refused as [`inspect_file`] refuses it (empty,
-/// not protobuf, no graph, no inputs or outputs).
+/// Reads and decodes the ONNX file at `path`, refused as [`inspect_file`] refuses it
+/// ([`inspect::decode_model`]).
 pub fn read_model(path: &Path) -> Result<ModelProto, OnnxError> {
     let shown = path.display().to_string();
     let bytes = prost::bytes::Bytes::from(fs::read(path).map_err(|source| OnnxError::Read {
         path: shown.clone(),
         source,
     })?);
-    inspect_bytes(bytes.clone(), &shown)?;
-    ModelProto::decode(bytes).map_err(|source| OnnxError::Decode {
-        path: shown,
-        source,
-    })
+    inspect::decode_model(bytes, &shown)
 }
 
 /// Serialises a model to the bytes of a `.onnx` file.
